@@ -1,0 +1,236 @@
+"""The only module that knows DOLFINx versions.
+
+pfem2x runs on Debian bookworm's DOLFINx 0.5.2 (system Python 3.11) and on
+DOLFINx 0.11 from the PyPI wheel ``dolfinx-solver-real`` (Python 3.12).
+Every API difference between them is handled here; the rest of the package
+imports DOLFINx names through these functions only.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from typing import Any
+
+# The PyPI wheel must be bootstrapped before dolfinx is imported.
+if importlib.util.find_spec("dolfinx_solver") is not None:  # pragma: no cover - 0.11 only
+    import dolfinx_solver  # noqa: F401
+
+import dolfinx
+import dolfinx.fem
+import dolfinx.fem.petsc
+import dolfinx.geometry
+import dolfinx.mesh
+import numpy as np
+from mpi4py import MPI
+from petsc4py import PETSc
+
+__all__ = [
+    "DOLFINX_VERSION",
+    "MPI",
+    "PETSc",
+    "dolfinx",
+    "assemble_matrix",
+    "assemble_vector",
+    "bb_tree",
+    "colliding_cells",
+    "create_mesh",
+    "create_interval",
+    "create_rectangle",
+    "create_box",
+    "dofmap_array",
+    "function_space",
+    "geometry_dofmap",
+    "gmsh_model_to_mesh",
+    "has_hypre",
+    "preconditioner",
+]
+
+DOLFINX_VERSION: tuple[int, int, int] = tuple(
+    int("".join(c for c in p if c.isdigit()) or 0) for p in dolfinx.__version__.split(".")[:3]
+)  # type: ignore[assignment]
+NEW_API = DOLFINX_VERSION >= (0, 8, 0)
+
+
+def _diagonal(name: str) -> Any:
+    try:
+        return getattr(dolfinx.mesh.DiagonalType, name)
+    except AttributeError as exc:  # pragma: no cover - validated in scene.py
+        raise ValueError(f"unknown diagonal {name!r}") from exc
+
+
+def create_interval(comm: MPI.Comm, bounds: tuple[float, float], n: int) -> dolfinx.mesh.Mesh:
+    """Create a uniform interval mesh of ``n`` cells on ``bounds``."""
+    return dolfinx.mesh.create_interval(comm, int(n), [float(bounds[0]), float(bounds[1])])
+
+
+def create_rectangle(
+    comm: MPI.Comm, bounds: Any, n: Any, diagonal: str = "right"
+) -> dolfinx.mesh.Mesh:
+    """Create a triangle mesh of a rectangle, ``n = [nx, ny]`` cells, split by ``diagonal``."""
+    pts = [np.asarray(bounds[0], dtype=float)[:2], np.asarray(bounds[1], dtype=float)[:2]]
+    return dolfinx.mesh.create_rectangle(
+        comm,
+        pts,
+        [int(n[0]), int(n[1])],
+        cell_type=dolfinx.mesh.CellType.triangle,
+        diagonal=_diagonal(diagonal),
+    )
+
+
+def create_box(comm: MPI.Comm, bounds: Any, n: Any) -> dolfinx.mesh.Mesh:
+    """Create a tetrahedral mesh of a box, ``n = [nx, ny, nz]`` cells."""
+    pts = [np.asarray(bounds[0], dtype=float)[:3], np.asarray(bounds[1], dtype=float)[:3]]
+    return dolfinx.mesh.create_box(
+        comm, pts, [int(n[0]), int(n[1]), int(n[2])], cell_type=dolfinx.mesh.CellType.tetrahedron
+    )
+
+
+def create_mesh(comm: MPI.Comm, cells: np.ndarray, x: np.ndarray, gdim: int) -> dolfinx.mesh.Mesh:
+    """Create an affine simplex mesh from rank-0 cell/vertex arrays (other ranks pass empties)."""
+    import basix.ufl  # noqa: PLC0415
+
+    tdim = cells.shape[1] - 1
+    cell = {1: "interval", 2: "triangle", 3: "tetrahedron"}[tdim]
+    if NEW_API:
+        domain = basix.ufl.element("Lagrange", cell, 1, shape=(gdim,))
+        return dolfinx.mesh.create_mesh(comm, cells, domain, x[:, :gdim])
+    import ufl  # noqa: PLC0415
+
+    domain = ufl.Mesh(ufl.VectorElement("Lagrange", ufl.Cell(cell, geometric_dimension=gdim), 1))
+    return dolfinx.mesh.create_mesh(comm, cells, x[:, :gdim], domain)
+
+
+def gmsh_model_to_mesh(model: Any, comm: MPI.Comm, rank: int, gdim: int) -> tuple[Any, Any, Any]:
+    """Turn a gmsh model (built on ``rank``) into ``(mesh, cell_tags, facet_tags)``."""
+    if NEW_API:
+        import dolfinx.io.gmsh as gmshio  # noqa: PLC0415
+
+        data = gmshio.model_to_mesh(model, comm, rank, gdim=gdim)
+        return data.mesh, data.cell_tags, data.facet_tags
+    from dolfinx.io import gmshio  # noqa: PLC0415
+
+    return gmshio.model_to_mesh(model, comm, rank, gdim=gdim)
+
+
+def function_space(mesh: Any, degree: int = 1, shape: tuple[int, ...] | None = None) -> Any:
+    """A continuous Lagrange space of ``degree`` (vector valued when ``shape`` is given)."""
+    if NEW_API:
+        return dolfinx.fem.functionspace(mesh, ("Lagrange", degree, shape) if shape else ("Lagrange", degree))
+    if shape:
+        return dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", degree), dim=shape[0])
+    return dolfinx.fem.FunctionSpace(mesh, ("Lagrange", degree))
+
+
+def _adjacency_to_array(adj: Any, width: int | None = None) -> np.ndarray:
+    if isinstance(adj, np.ndarray):
+        return adj
+    arr = np.asarray(adj.array)
+    if width is None:
+        offs = np.asarray(adj.offsets)
+        width = int(offs[1] - offs[0]) if len(offs) > 1 else 0
+    return arr.reshape(-1, width) if width else arr.reshape(0, 0)
+
+
+def dofmap_array(V: Any) -> np.ndarray:
+    """Cell → dof table, shape ``(num_cells_local + ghosts, dofs_per_cell)`` (block indices)."""
+    return np.ascontiguousarray(_adjacency_to_array(V.dofmap.list), dtype=np.int32)
+
+
+def geometry_dofmap(mesh: Any) -> np.ndarray:
+    """Cell → geometry node table, shape ``(num_cells_local + ghosts, nodes_per_cell)``."""
+    return np.ascontiguousarray(_adjacency_to_array(mesh.geometry.dofmap), dtype=np.int32)
+
+
+def connectivity(mesh: Any, d0: int, d1: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(array, offsets)`` of the topology connectivity ``d0 → d1`` (created if needed)."""
+    mesh.topology.create_connectivity(d0, d1)
+    c = mesh.topology.connectivity(d0, d1)
+    return np.asarray(c.array, dtype=np.int32), np.asarray(c.offsets, dtype=np.int32)
+
+
+def bb_tree(mesh: Any) -> Any:
+    """Bounding-box tree over the cells of ``mesh``."""
+    tdim = mesh.topology.dim
+    if NEW_API:
+        return dolfinx.geometry.bb_tree(mesh, tdim)
+    return dolfinx.geometry.BoundingBoxTree(mesh, tdim)
+
+
+def colliding_cells(mesh: Any, tree: Any, points: np.ndarray) -> np.ndarray:
+    """First local cell containing each point (``-1`` where none), points ``(n, 3)``."""
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    if pts.shape[0] == 0:
+        return np.zeros(0, dtype=np.int32)
+    if NEW_API:
+        cand = dolfinx.geometry.compute_collisions_points(tree, pts)
+    else:
+        cand = dolfinx.geometry.compute_collisions(tree, pts)
+    coll = dolfinx.geometry.compute_colliding_cells(mesh, cand, pts)
+    offs = np.asarray(coll.offsets)
+    arr = np.asarray(coll.array)
+    out = np.full(pts.shape[0], -1, dtype=np.int32)
+    has = offs[1:] > offs[:-1]
+    out[has] = arr[offs[:-1][has]]
+    return out
+
+
+def assemble_matrix(a: Any, bcs: list | None = None, A: Any | None = None) -> Any:
+    """Assemble a bilinear form into a (new or given) PETSc matrix, finalised."""
+    bcs = bcs or []
+    if A is None:
+        A = dolfinx.fem.petsc.assemble_matrix(a, bcs=bcs)
+    else:
+        A.zeroEntries()
+        dolfinx.fem.petsc.assemble_matrix(A, a, bcs=bcs)
+    A.assemble()
+    return A
+
+
+def create_vector(L: Any) -> Any:
+    """A ghosted PETSc vector compatible with the linear form ``L``."""
+    if NEW_API:
+        return dolfinx.fem.petsc.create_vector(L.function_spaces[0])
+    return dolfinx.fem.petsc.create_vector(L)
+
+
+def assemble_vector(L: Any, b: Any, a: Any | None = None, bcs: list | None = None) -> Any:
+    """Assemble ``L`` into ``b`` (zeroed first), lift and set Dirichlet values, ghosts updated."""
+    with b.localForm() as loc:
+        loc.set(0.0)
+    dolfinx.fem.petsc.assemble_vector(b, L)
+    if a is not None and bcs:
+        dolfinx.fem.petsc.apply_lifting(b, [a], bcs=[bcs])
+    b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+    if bcs:
+        dolfinx.fem.petsc.set_bc(b, bcs)
+    return b
+
+
+def has_hypre() -> bool:
+    """Whether PETSc was built with hypre (Debian: yes; PyPI wheel: no)."""
+    try:
+        pc = PETSc.PC().create(PETSc.COMM_SELF)
+        pc.setType("hypre")
+        pc.destroy()
+        return True
+    except PETSc.Error:
+        return False
+
+
+def preconditioner(requested: str = "auto") -> str:
+    """Resolve an algebraic multigrid choice: ``auto`` → hypre where available, else gamg."""
+    if requested == "auto":
+        return "hypre" if has_hypre() else "gamg"
+    return requested
+
+
+def form(expr: Any) -> Any:
+    """Compile a UFL form (same call on both versions)."""
+    return dolfinx.fem.form(expr)
+
+
+def xdmf_file(comm: MPI.Comm, path: str, mode: str = "w") -> Any:
+    """Open an XDMF file (ParaView reads it)."""
+    import dolfinx.io  # noqa: PLC0415
+
+    return dolfinx.io.XDMFFile(comm, path, mode)
