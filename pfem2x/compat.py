@@ -15,6 +15,8 @@ from typing import Any
 if importlib.util.find_spec("dolfinx_solver") is not None:  # pragma: no cover - 0.11 only
     import dolfinx_solver  # noqa: F401
 
+import logging
+
 import dolfinx
 import dolfinx.fem
 import dolfinx.fem.petsc
@@ -49,6 +51,14 @@ DOLFINX_VERSION: tuple[int, int, int] = tuple(
     int("".join(c for c in p if c.isdigit()) or 0) for p in dolfinx.__version__.split(".")[:3]
 )  # type: ignore[assignment]
 NEW_API = DOLFINX_VERSION >= (0, 8, 0)
+
+# DOLFINx 0.5.2's JIT leaves the root logger at INFO, so every form compile
+# would print compiler lines; pfem2x solvers never print.
+# (cffi/setuptools raise the root logger level at each compile, so quieten
+# the handlers ffcx installed rather than the logger).
+logging.getLogger().setLevel(logging.WARNING)
+for _h in logging.getLogger().handlers:
+    _h.setLevel(logging.WARNING)
 
 
 def _diagonal(name: str) -> Any:
@@ -115,7 +125,9 @@ def gmsh_model_to_mesh(model: Any, comm: MPI.Comm, rank: int, gdim: int) -> tupl
 def function_space(mesh: Any, degree: int = 1, shape: tuple[int, ...] | None = None) -> Any:
     """A continuous Lagrange space of ``degree`` (vector valued when ``shape`` is given)."""
     if NEW_API:
-        return dolfinx.fem.functionspace(mesh, ("Lagrange", degree, shape) if shape else ("Lagrange", degree))
+        return dolfinx.fem.functionspace(
+            mesh, ("Lagrange", degree, shape) if shape else ("Lagrange", degree)
+        )
     if shape:
         return dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", degree), dim=shape[0])
     return dolfinx.fem.FunctionSpace(mesh, ("Lagrange", degree))
@@ -193,6 +205,11 @@ def create_vector(L: Any) -> Any:
     return dolfinx.fem.petsc.create_vector(L)
 
 
+def petsc_vec(u: Any) -> Any:
+    """The PETSc vector wrapping a Function's dofs."""
+    return u.x.petsc_vec if NEW_API else u.vector
+
+
 def assemble_vector(L: Any, b: Any, a: Any | None = None, bcs: list | None = None) -> Any:
     """Assemble ``L`` into ``b`` (zeroed first), lift and set Dirichlet values, ghosts updated."""
     with b.localForm() as loc:
@@ -234,3 +251,61 @@ def xdmf_file(comm: MPI.Comm, path: str, mode: str = "w") -> Any:
     import dolfinx.io  # noqa: PLC0415
 
     return dolfinx.io.XDMFFile(comm, path, mode)
+
+
+# --- particles ---
+
+
+def la_vector(index_map: Any, bs: int = 1) -> Any:
+    """A distributed ``dolfinx.la`` vector of block size ``bs`` on ``index_map`` (with ghosts)."""
+    import dolfinx.la  # noqa: PLC0415
+
+    return dolfinx.la.vector(index_map, int(bs), dtype=np.float64)
+
+
+def scatter_reverse_add(vec: Any) -> None:
+    """Add ghost entries of a ``dolfinx.la`` vector (or ``Function.x``) into their owners."""
+    import dolfinx.la  # noqa: PLC0415
+
+    if NEW_API:
+        vec.scatter_reverse(dolfinx.la.InsertMode.add)
+    else:
+        vec.scatter_reverse(dolfinx.la.ScatterMode.add)
+
+
+def scatter_forward(vec: Any) -> None:
+    """Copy owned entries of a ``dolfinx.la`` vector (or ``Function.x``) to their ghosts."""
+    vec.scatter_forward()
+
+
+def index_map_ghost_owners(index_map: Any) -> np.ndarray:
+    """Owning rank of each ghost of ``index_map``, shape ``(num_ghosts,)``."""
+    own = index_map.owners
+    if callable(own):  # pragma: no cover - older bindings
+        own = own()
+    return np.asarray(own, dtype=np.int32)
+
+
+def index_map_ghosts(index_map: Any) -> np.ndarray:
+    """Global indices of the ghosts of ``index_map``, shape ``(num_ghosts,)``."""
+    return np.asarray(index_map.ghosts, dtype=np.int64)
+
+
+def index_map_local_range(index_map: Any) -> tuple[int, int]:
+    """``[begin, end)`` global indices of the entries owned by this rank."""
+    lr = index_map.local_range
+    return int(lr[0]), int(lr[1])
+
+
+def original_cell_index(mesh: Any) -> np.ndarray:
+    """Input (partition-independent) index of each local cell, owned then ghosts."""
+    return np.asarray(mesh.topology.original_cell_index, dtype=np.int64)
+
+
+def bb_tree_cells(mesh: Any, cells: np.ndarray) -> Any:
+    """Bounding-box tree over a subset of the local cells of ``mesh``."""
+    tdim = mesh.topology.dim
+    ents = np.ascontiguousarray(cells, dtype=np.int32)
+    if NEW_API:
+        return dolfinx.geometry.bb_tree(mesh, tdim, entities=ents)
+    return dolfinx.geometry.BoundingBoxTree(mesh, tdim, ents)

@@ -53,6 +53,8 @@ class GeometryTable:
         ``(num_cells,)`` cell measure.
     h:
         ``(num_cells,)`` cell diameter (longest edge).
+    h_edge:
+        ``(num_cells,)`` shortest edge: the mesh size H of Courant numbers.
     bbox:
         ``(2, gdim)`` global bounding box of the mesh.
     """
@@ -71,9 +73,10 @@ class GeometryTable:
     h: np.ndarray
     bbox: np.ndarray
     node_coords: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3)))
+    h_edge: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
 
 
-_TABLES: "weakref.WeakKeyDictionary[Any, GeometryTable]" = weakref.WeakKeyDictionary()
+_TABLES: weakref.WeakKeyDictionary[Any, GeometryTable] = weakref.WeakKeyDictionary()
 _TABLES_BY_ID: dict[int, tuple[Any, GeometryTable]] = {}
 
 
@@ -119,6 +122,7 @@ def _build_table(mesh: Any) -> GeometryTable:
         for j in range(i + 1, tdim + 1):
             edges.append(np.linalg.norm(coords[:, i] - coords[:, j], axis=1))
     h = np.max(np.stack(edges, axis=1), axis=1) if n_cells else np.zeros(0)
+    h_edge = np.min(np.stack(edges, axis=1), axis=1) if n_cells else np.zeros(0)
 
     # Facet neighbours: triangle/tet local facet i is opposite local vertex i (basix numbering).
     c2f, c2f_off = compat.connectivity(mesh, tdim, tdim - 1)
@@ -161,6 +165,7 @@ def _build_table(mesh: Any) -> GeometryTable:
         h=h,
         bbox=bbox,
         node_coords=np.ascontiguousarray(x),
+        h_edge=h_edge,
     )
 
 
@@ -218,8 +223,8 @@ class Domain:
         return int(im.size_global)
 
     def min_h(self) -> float:
-        """Smallest cell diameter over all ranks."""
-        h = self.table.h
+        """Mesh size H for Courant numbers: the shortest cell edge over all ranks."""
+        h = self.table.h_edge
         return float(self.comm.allreduce(h.min() if len(h) else np.inf, op=MPI.MIN))
 
 
@@ -302,7 +307,7 @@ def read_geo(comm: MPI.Comm, path: str | os.PathLike) -> tuple[Any, Any, Any]:
         raise MeshError(comm.bcast(msg, root=0))
     import gmsh  # noqa: PLC0415
 
-    started = gmsh.isInitialized()
+    started = getattr(gmsh, "isInitialized", lambda: False)()  # gmsh 4.8 lacks it
     if not started:
         gmsh.initialize()
     gmsh.option.setNumber("General.Terminal", 0)
@@ -336,4 +341,3 @@ def read_geo(comm: MPI.Comm, path: str | os.PathLike) -> tuple[Any, Any, Any]:
     finally:
         if not started:
             gmsh.finalize()
-

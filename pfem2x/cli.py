@@ -1,0 +1,99 @@
+"""Command line: ``pfem2x run | check | scenes``.
+
+Exit codes: 0 ok, 2 bad input (one ``error:`` line on stderr naming the key
+or file), 3 the simulation diverged.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+__all__ = ["main"]
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # one line, exit 2, no usage dump
+        print(f"error: {message} (see `pfem2x {self.prog.split()[-1]} --help`)", file=sys.stderr)
+        raise SystemExit(2)
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="pfem2x", description="PFEM-2 particle-mesh flow solver on DOLFINx")
+    sub = p.add_subparsers(dest="cmd", required=True, parser_class=_Parser)
+    r = sub.add_parser("run", help="run a scene")
+    r.add_argument("scene", help="a scene file (.toml) or a built-in scene name")
+    r.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", help="override a scene key"
+    )
+    r.add_argument("--variant", help="apply the scene's [variants.NAME] (e.g. small)")
+    r.add_argument("--out", help="output folder (default runs/SCENE)")
+    r.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    r.add_argument("--quiet", action="store_true", help="no progress bar or messages")
+    c = sub.add_parser("check", help="validate a scene (and build its mesh) without running")
+    c.add_argument("scene")
+    c.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    c.add_argument("--variant")
+    sub.add_parser("scenes", help="list built-in scenes")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``pfem2x`` console script."""
+    args = _parser().parse_args(argv)
+    if args.cmd == "scenes":
+        return _scenes()
+    from mpi4py import MPI  # noqa: PLC0415
+
+    from pfem2x.scene import SceneError, load_scene  # noqa: PLC0415
+
+    comm = MPI.COMM_WORLD
+    try:
+        scene = load_scene(args.scene, args.set, args.variant)
+        # DOLFINx is imported only once the scene is known to be sane.
+        from pfem2x.runner import Simulation, build_domain, make_solver, time_grid  # noqa: PLC0415
+
+        if args.cmd == "check":
+            domain = build_domain(scene, comm)
+            solver = make_solver(scene, domain)
+            dt, steps = time_grid(scene, domain, solver)
+            if comm.rank == 0:
+                print(
+                    f"ok: {scene.name} ({scene['scene']['physics']}, {scene.frame}), "
+                    f"{domain.num_cells_global()} cells, {steps} steps of dt = {dt:.4g}"
+                )
+            return 0
+        out = Path(args.out) if args.out else Path("runs") / scene.name
+        sim = Simulation(scene, out, comm, quiet=args.quiet, overwrite=args.overwrite)
+        result = sim.run()
+        return result.exit_code
+    except SceneError as exc:
+        if comm.rank == 0:
+            print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        if comm.rank == 0:
+            print("error: interrupted", file=sys.stderr)
+        return 130
+
+
+def _scenes() -> int:
+    import tomllib  # noqa: PLC0415
+
+    from pfem2x.scene import builtin_scenes  # noqa: PLC0415
+
+    for name, path in builtin_scenes().items():
+        try:
+            raw = tomllib.loads(path.read_text())
+            desc = raw.get("scene", {}).get("description", "")
+            variants = ", ".join(sorted(raw.get("variants", {})))
+        except (OSError, tomllib.TOMLDecodeError):
+            desc, variants = "(unreadable)", ""
+        extra = f"  [variants: {variants}]" if variants else ""
+        print(f"{name:24s} {desc}{extra}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

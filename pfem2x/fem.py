@@ -1,0 +1,112 @@
+"""Thin finite-element helpers over DOLFINx/PETSc: counted assembly and solves.
+
+Every matrix assembly and linear solve in pfem2x goes through this module,
+so that a run can report (and a test can assert) exactly which operators a
+scene built: "simulate only the effects a scene calls for".
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Any
+
+import numpy as np
+
+from pfem2x import compat
+from pfem2x.compat import PETSc
+
+__all__ = ["COUNTERS", "LinearSolver", "assemble_matrix", "reset_counters"]
+
+#: Process-wide counts: ``matrix_assemblies``, ``vector_assemblies``, ``solves``.
+COUNTERS: Counter[str] = Counter()
+
+
+def reset_counters() -> None:
+    """Zero :data:`COUNTERS`."""
+    COUNTERS.clear()
+
+
+def assemble_matrix(a: Any, bcs: list | None = None, A: Any | None = None) -> Any:
+    """Assemble a bilinear form (counted), reusing ``A`` when given."""
+    COUNTERS["matrix_assemblies"] += 1
+    return compat.assemble_matrix(a, bcs, A)
+
+
+def assemble_vector(L: Any, b: Any, a: Any | None = None, bcs: list | None = None) -> Any:
+    """Assemble a linear form into ``b`` (counted), with lifting/BCs when ``a, bcs`` given."""
+    COUNTERS["vector_assemblies"] += 1
+    return compat.assemble_vector(L, b, a, bcs)
+
+
+class LinearSolver:
+    """A PETSc KSP with a pfem2x-chosen method, counted solves.
+
+    Parameters
+    ----------
+    A:
+        The assembled operator.
+    kind:
+        ``"cg"`` (SPD, AMG preconditioned), ``"gmres"`` (non-symmetric) or ``"lu"``.
+    preconditioner:
+        ``auto`` (cg: hypre where available, else gamg; gmres: ILU, block
+        Jacobi/ILU in parallel), ``hypre``, ``gamg``, ``jacobi``, ``lu`` or ``none``.
+    rtol:
+        Relative tolerance of iterative solves.
+    """
+
+    def __init__(self, A: Any, kind: str = "cg", preconditioner: str = "auto", rtol: float = 1e-10):
+        self.ksp = PETSc.KSP().create(A.getComm())
+        self.ksp.setOperators(A)
+        pc = self.ksp.getPC()
+        if kind == "lu" or preconditioner == "lu":
+            self.ksp.setType("preonly")
+            pc.setType("lu")
+        else:
+            self.ksp.setType(kind)
+            self.ksp.setTolerances(rtol=rtol, atol=1e-50, max_it=5000)
+            self.ksp.setNormType(
+                PETSc.KSP.NormType.UNPRECONDITIONED
+                if kind == "gmres"
+                else PETSc.KSP.NormType.DEFAULT
+            )
+            if kind == "gmres" and preconditioner == "auto":
+                # Non-symmetric transport operators: PETSc's ILU (bjacobi/ILU in parallel).
+                pc.setType("bjacobi" if A.getComm().getSize() > 1 else "ilu")
+            else:
+                pre = compat.preconditioner(preconditioner)
+                if pre == "hypre":
+                    pc.setType("hypre")
+                    pc.setHYPREType("boomeramg")
+                elif pre == "gamg":
+                    pc.setType("gamg")
+                elif pre == "jacobi":
+                    pc.setType("jacobi")
+                else:
+                    pc.setType("none")
+        self.ksp.setFromOptions()
+        self.last_iterations = 0
+
+    def set_operator(self, A: Any) -> None:
+        """Use a new (or re-assembled) operator."""
+        self.ksp.setOperators(A)
+
+    def solve(self, b: Any, x: Any) -> int:
+        """Solve ``A x = b``; returns the iteration count; raises on divergence."""
+        COUNTERS["solves"] += 1
+        self.ksp.solve(b, x)
+        reason = self.ksp.getConvergedReason()
+        self.last_iterations = int(self.ksp.getIterationNumber())
+        if reason < 0:
+            raise FloatingPointError(f"linear solver diverged (PETSc reason {reason})")
+        return self.last_iterations
+
+    def destroy(self) -> None:
+        """Free PETSc objects."""
+        self.ksp.destroy()
+
+
+def owned_values(u: Any) -> np.ndarray:
+    """The owned (non-ghost) entries of a Function's array."""
+    im = u.function_space.dofmap.index_map
+    bs = u.function_space.dofmap.index_map_bs
+    return u.x.array[: im.size_local * bs]

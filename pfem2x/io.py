@@ -1,0 +1,320 @@
+"""Output: XDMF field time series, VTK particle clouds, CSV diagnostics, PNG snapshots.
+
+Everything here is collective where it gathers and writes files from rank 0
+only. ParaView opens ``fields.xdmf``, ``particles.pvd`` and the CSV directly.
+"""
+
+from __future__ import annotations
+
+import base64
+import csv
+import json
+import os
+import tempfile
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pfem2x import compat
+from pfem2x.compat import MPI
+from pfem2x.mesh import geometry_table
+
+__all__ = [
+    "CSVWriter",
+    "FieldWriter",
+    "ParticleWriter",
+    "atomic_write_text",
+    "gather_p1",
+    "png_snapshot",
+    "write_json",
+    "write_vtp",
+]
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    """Write a text file atomically (temporary file in the same folder, then rename)."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_json(path: str | os.PathLike, data: Any) -> None:
+    """Write JSON atomically (call on one rank)."""
+    atomic_write_text(
+        path, json.dumps(data, indent=2, sort_keys=False, default=_json_default) + "\n"
+    )
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(type(o))
+
+
+class FieldWriter:
+    """An XDMF time series of P1 functions (``fields.xdmf`` + ``.h5``)."""
+
+    def __init__(self, comm: MPI.Comm, path: str | os.PathLike, mesh: Any):
+        self.file = compat.xdmf_file(comm, str(path), "w")
+        self.file.write_mesh(mesh)
+
+    def write(self, functions: dict[str, Any], t: float) -> None:
+        """Write every function at time ``t``."""
+        for u in functions.values():
+            self.file.write_function(u, t)
+
+    def close(self) -> None:
+        """Close the file."""
+        self.file.close()
+
+
+class CSVWriter:
+    """Diagnostics over time, one row per step, written by rank 0 (flushed every row)."""
+
+    def __init__(self, comm: MPI.Comm, path: str | os.PathLike):
+        self.rank = comm.rank
+        self.path = Path(path)
+        self._f = None
+        self._w: Any = None
+        self._cols: list[str] | None = None
+
+    def write(self, row: dict[str, Any]) -> None:
+        """Append a row (the first row fixes the columns; later new keys are dropped)."""
+        if self.rank != 0:
+            return
+        if self._w is None:
+            self._cols = list(row)
+            self._f = open(self.path, "w", newline="", encoding="utf-8")  # noqa: SIM115
+            self._w = csv.DictWriter(self._f, fieldnames=self._cols, extrasaction="ignore")
+            self._w.writeheader()
+        self._w.writerow({k: _fmt(row.get(k)) for k in self._cols})
+        self._f.flush()
+
+    def close(self) -> None:
+        """Close the file."""
+        if self._f is not None:
+            self._f.close()
+
+
+def _fmt(v: Any) -> Any:
+    if isinstance(v, float):
+        return f"{v:.10g}"
+    return v
+
+
+def write_vtp(path: str | os.PathLike, points: np.ndarray, fields: dict[str, np.ndarray]) -> None:
+    """Write a VTK XML PolyData point cloud (binary, base64) readable by ParaView."""
+    pts = np.zeros((points.shape[0], 3))
+    pts[:, : points.shape[1]] = points
+    n = pts.shape[0]
+
+    def arr(a: np.ndarray, name: str | None, ncomp: int) -> str:
+        a = np.ascontiguousarray(a, dtype=np.float64 if a.dtype.kind == "f" else np.int64)
+        raw = a.tobytes()
+        head = np.array([len(raw)], dtype=np.uint64).tobytes()
+        typ = "Float64" if a.dtype == np.float64 else "Int64"
+        nm = f' Name="{name}"' if name else ""
+        return (
+            f'<DataArray type="{typ}"{nm} NumberOfComponents="{ncomp}" format="binary">'
+            f"{base64.b64encode(head + raw).decode()}</DataArray>\n"
+        )
+
+    conn = np.arange(n, dtype=np.int64)
+    parts = [
+        '<?xml version="1.0"?>\n',
+        '<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" header_type="UInt64">\n',
+        f'<PolyData><Piece NumberOfPoints="{n}" NumberOfVerts="{n}" NumberOfLines="0" '
+        'NumberOfStrips="0" NumberOfPolys="0">\n<PointData>\n',
+    ]
+    for name, a in fields.items():
+        a = np.asarray(a)
+        ncomp = 1 if a.ndim == 1 else a.shape[1]
+        if ncomp == 2:  # ParaView wants 3-vectors
+            a = np.hstack([a, np.zeros((n, 1))])
+            ncomp = 3
+        parts.append(arr(a, name, ncomp))
+    parts.append("</PointData>\n<Points>\n")
+    parts.append(arr(pts, None, 3))
+    parts.append("</Points>\n<Verts>\n")
+    parts.append(arr(conn, "connectivity", 1).replace('Name="connectivity"', 'Name="connectivity"'))
+    parts.append(arr(conn + 1, "offsets", 1))
+    parts.append("</Verts>\n</Piece></PolyData>\n</VTKFile>\n")
+    Path(path).write_text("".join(parts), encoding="ascii")
+
+
+class ParticleWriter:
+    """A ``particles.pvd`` collection of ``particles/step_NNNNN.vtp`` files (gathered to rank 0)."""
+
+    def __init__(self, comm: MPI.Comm, folder: str | os.PathLike):
+        self.comm = comm
+        self.folder = Path(folder)
+        self.entries: list[tuple[float, str]] = []
+        if comm.rank == 0:
+            (self.folder / "particles").mkdir(parents=True, exist_ok=True)
+
+    def write(
+        self, positions: np.ndarray, fields: dict[str, np.ndarray], t: float, step: int
+    ) -> None:
+        """Gather the cloud to rank 0 and write one time level."""
+        allp = self.comm.gather(positions, root=0)
+        allf = self.comm.gather(fields, root=0)
+        if self.comm.rank != 0:
+            return
+        pos = np.concatenate(allp) if allp else positions
+        flds = {k: np.concatenate([f[k] for f in allf]) for k in fields}
+        rel = f"particles/step_{step:06d}.vtp"
+        write_vtp(self.folder / rel, pos, flds)
+        self.entries.append((t, rel))
+        body = "".join(f'<DataSet timestep="{tt:.10g}" file="{r}"/>\n' for tt, r in self.entries)
+        atomic_write_text(
+            self.folder / "particles.pvd",
+            '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n<Collection>\n'
+            + body
+            + "</Collection>\n</VTKFile>\n",
+        )
+
+
+def gather_p1(u: Any) -> tuple[np.ndarray, np.ndarray] | tuple[None, None]:
+    """Gather a scalar P1 function to rank 0 as per-cell vertex coordinates and values.
+
+    Returns
+    -------
+    (coords, values)
+        ``(ncells, nv, gdim)`` and ``(ncells, nv)`` on rank 0, ``(None, None)`` elsewhere.
+    """
+    mesh = u.function_space.mesh
+    tab = geometry_table(mesh)
+    dofs = compat.dofmap_array(u.function_space)[: tab.num_cells_owned]
+    coords = tab.coords[: tab.num_cells_owned]
+    vals = u.x.array[dofs]
+    comm = mesh.comm
+    cs = comm.gather(coords, root=0)
+    vs = comm.gather(vals, root=0)
+    if comm.rank != 0:
+        return None, None
+    return np.concatenate(cs), np.concatenate(vs)
+
+
+def png_snapshot(
+    path: str | os.PathLike,
+    u: Any,
+    title: str = "",
+    clim: tuple[float, float] | None = None,
+    contour: float | None = None,
+) -> None:
+    """Render a scalar P1 field to PNG (collective; rank 0 writes).
+
+    2D and 3D use pyvista off-screen (matplotlib if pyvista is missing); 1D
+    is a matplotlib line plot.
+    """
+    coords, vals = gather_p1(u)
+    if coords is None:
+        return
+    gdim = coords.shape[2]
+    if gdim == 1:
+        _png_1d(path, coords, vals, title)
+        return
+    try:
+        _png_pyvista(path, coords, vals, title, clim, contour)
+    except ImportError:
+        _png_matplotlib(path, coords, vals, title, clim, contour)
+
+
+def _png_1d(path: Any, coords: np.ndarray, vals: np.ndarray, title: str) -> None:
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    x = coords[:, :, 0].ravel()
+    v = vals.ravel()
+    order = np.argsort(x, kind="stable")
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    ax.plot(x[order], v[order], "-", lw=1.5)
+    ax.set_xlabel("x")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _png_pyvista(
+    path: Any, coords: np.ndarray, vals: np.ndarray, title: str, clim: Any, contour: float | None
+) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        import pyvista as pv  # noqa: PLC0415
+
+    pv.OFF_SCREEN = True
+    try:  # no "bad X server connection" warnings on headless machines
+        from vtkmodules.vtkCommonCore import vtkLogger, vtkObject  # noqa: PLC0415
+
+        vtkObject.GlobalWarningDisplayOff()
+        vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)
+    except ImportError:  # pragma: no cover
+        pass
+    nc, nv, gdim = coords.shape
+    pts = np.zeros((nc * nv, 3))
+    pts[:, :gdim] = coords.reshape(-1, gdim)
+    cells = np.hstack([np.full((nc, 1), nv), np.arange(nc * nv).reshape(nc, nv)]).ravel()
+    ctype = pv.CellType.TRIANGLE if nv == 3 else pv.CellType.TETRA
+    grid = pv.UnstructuredGrid(cells, np.full(nc, ctype, dtype=np.uint8), pts)
+    grid.point_data["value"] = vals.ravel()
+    span = pts.max(axis=0) - pts.min(axis=0)
+    aspect = span[1] / max(span[0], 1e-30) if gdim == 2 else 1.0
+    w = 800
+    h = int(np.clip(w * aspect, 300, 1600)) if gdim == 2 else 800
+    pl = pv.Plotter(off_screen=True, window_size=(w, h))
+    # No VTK scalar bar: with DOLFINx loaded, VTK 9.x wheels abort in its label
+    # formatting (libstdc++ regex clash); the range goes into the title instead.
+    pl.add_mesh(grid, scalars="value", cmap="viridis", clim=clim, show_scalar_bar=False)
+    if contour is not None and gdim == 2:
+        iso = grid.contour([contour], scalars="value")
+        if iso.n_points:
+            pl.add_mesh(iso, color="white", line_width=2)
+    lo, hi = (float(vals.min()), float(vals.max())) if clim is None else clim
+    pl.add_text(f"{title}   [{lo:.3g}, {hi:.3g}]", font_size=10)
+    if gdim == 2:
+        pl.view_xy()
+    pl.screenshot(str(path))
+    pl.close()
+
+
+def _png_matplotlib(
+    path: Any, coords: np.ndarray, vals: np.ndarray, title: str, clim: Any, contour: float | None
+) -> None:
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.tri as mtri  # noqa: PLC0415
+
+    nc, nv, gdim = coords.shape
+    pts = coords.reshape(-1, gdim)
+    tri = mtri.Triangulation(pts[:, 0], pts[:, 1], np.arange(nc * nv).reshape(nc, nv)[:, :3])
+    fig, ax = plt.subplots(figsize=(6, 6))
+    tpc = ax.tripcolor(
+        tri,
+        vals.ravel(),
+        shading="gouraud",
+        vmin=clim[0] if clim else None,
+        vmax=clim[1] if clim else None,
+    )
+    if contour is not None:
+        ax.tricontour(tri, vals.ravel(), levels=[contour], colors="w")
+    fig.colorbar(tpc, ax=ax)
+    ax.set_aspect("equal")
+    ax.set_title(title)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
