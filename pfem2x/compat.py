@@ -150,7 +150,8 @@ def dofmap_array(V: Any) -> np.ndarray:
 
 def geometry_dofmap(mesh: Any) -> np.ndarray:
     """Cell → geometry node table, shape ``(num_cells_local + ghosts, nodes_per_cell)``."""
-    return np.ascontiguousarray(_adjacency_to_array(mesh.geometry.dofmap), dtype=np.int32)
+    dm = mesh.geometry.dofmaps[0] if hasattr(mesh.geometry, "dofmaps") else mesh.geometry.dofmap
+    return np.ascontiguousarray(_adjacency_to_array(dm), dtype=np.int32)
 
 
 def connectivity(mesh: Any, d0: int, d1: int) -> tuple[np.ndarray, np.ndarray]:

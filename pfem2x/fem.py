@@ -97,7 +97,8 @@ class LinearSolver:
         reason = self.ksp.getConvergedReason()
         self.last_iterations = int(self.ksp.getIterationNumber())
         if reason < 0:
-            raise FloatingPointError(f"linear solver diverged (PETSc reason {reason})")
+            what = "NaN/Inf in the system" if reason == -9 else f"PETSc reason {reason}"
+            raise FloatingPointError(f"linear solver diverged ({what})")
         return self.last_iterations
 
     def destroy(self) -> None:

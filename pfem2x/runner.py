@@ -63,6 +63,10 @@ def make_solver(scene: Scene, domain: Domain) -> Solver:
         from pfem2x.physics.transport import make_transport_solver  # noqa: PLC0415
 
         return make_transport_solver(scene, domain)
+    if physics == "flow":
+        from pfem2x.physics.flow import make_flow_solver  # noqa: PLC0415
+
+        return make_flow_solver(scene, domain)
     raise SceneError(f"scene.physics: {physics!r} is not available yet")
 
 
@@ -242,7 +246,7 @@ class Simulation:
                 snapshots(t)
                 if bar is not None:
                     bar.update(1)
-        except Diverged as exc:
+        except FloatingPointError as exc:  # Diverged, or a linear solver that diverged
             status, code = "diverged", EXIT_DIVERGED
             message = f"diverged at step {step}, t = {t:.6g}: {exc}"
             self.solver.restore(last_good)

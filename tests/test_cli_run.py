@@ -1,0 +1,61 @@
+"""A small built-in scene end to end through the CLI: every promised output."""
+
+import csv
+import json
+import subprocess
+import sys
+
+import pytest
+
+
+def run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "pfem2x", *args], capture_output=True, text=True, timeout=600)
+
+
+def test_scenes_lists_builtins():
+    res = run("scenes")
+    assert res.returncode == 0
+    assert "gaussian-hill" in res.stdout
+
+
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("run") / "gh"
+    res = run("run", "gaussian-hill", "--variant", "small", "--out", str(out), "--set", "time.courant=2", "--quiet")
+    assert res.returncode == 0, res.stderr
+    return out, res
+
+
+def test_summary(small_run):
+    out, res = small_run
+    s = json.loads((out / "summary.json").read_text())
+    for key in ("scene", "frame", "steps", "dt", "courant_max", "wall_seconds", "status", "dolfinx_version", "mpi_size", "metrics"):
+        assert key in s, key
+    assert s["status"] == "ok"
+    assert s["scene"] == "gaussian-hill"
+    assert s["mpi_size"] == 1
+    # --set time.courant=2 took effect: the run's Courant number is 2 (within the step rounding).
+    assert 1.6 < s["courant_max"] <= 2.0 + 1e-9
+    assert s["steps"] * s["dt"] == pytest.approx(1.0)
+    assert res.stderr.strip() == ""  # --quiet: nothing printed
+
+
+def test_outputs(small_run):
+    out, _ = small_run
+    assert (out / "fields.xdmf").is_file() and (out / "fields.h5").is_file()
+    assert "<Xdmf" in (out / "fields.xdmf").read_text()
+    rows = list(csv.DictReader((out / "diagnostics.csv").open()))
+    s = json.loads((out / "summary.json").read_text())
+    assert len(rows) == s["steps"] + 1
+    assert float(rows[0]["max"]) == pytest.approx(1.0, abs=0.05)
+    pngs = list(out.glob("*.png"))
+    assert pngs and all(p.stat().st_size > 1000 for p in pngs)
+    assert (out / "scene.toml").read_text().count("courant = 2") == 1
+
+
+def test_no_overwrite_without_flag_then_overwrite(small_run):
+    out, _ = small_run
+    res = run("run", "gaussian-hill", "--variant", "small", "--out", str(out), "--quiet")
+    assert res.returncode == 2 and res.stderr.startswith("error:")
+    res = run("run", "gaussian-hill", "--variant", "small", "--out", str(out), "--quiet", "--overwrite")
+    assert res.returncode == 0, res.stderr

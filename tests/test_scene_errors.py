@@ -1,0 +1,140 @@
+"""Broken scenes and CLI calls: one `error:` line naming the key or file, exit 2.
+
+Each case runs the real command line (`python -m pfem2x check|run ...`).
+"""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+GOOD = """
+[scene]
+name = "tiny"
+[mesh]
+kind = "rectangle"
+bounds = [[0, 0], [1, 1]]
+cells = [4, 4]
+[effects]
+advection = true
+[transport]
+velocity = ["1", "0"]
+initial = "x"
+[time]
+t_end = 0.1
+dt = 0.05
+"""
+
+
+def cli(*args, cwd=None):
+    return subprocess.run(
+        [sys.executable, "-m", "pfem2x", *args],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        timeout=300,
+    )
+
+
+def assert_one_error(res, *needles):
+    assert res.returncode == 2, (res.returncode, res.stderr)
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, res.stderr
+    assert lines[0].startswith("error:"), lines[0]
+    assert "Traceback" not in res.stderr
+    for n in needles:
+        assert n in lines[0], (n, lines[0])
+
+
+BROKEN = {
+    "bad_toml": (GOOD.replace('name = "tiny"', "name = tiny ="), ["not valid TOML"]),
+    "unknown_key": (GOOD.replace("t_end = 0.1", "t_end = 0.1\ncourrant = 3"), ["time.courrant", "time.courant"]),
+    "unknown_section": (GOOD + "\n[mesch]\nx = 1\n", ["mesch", "mesh"]),
+    "wrong_type": (GOOD.replace("cells = [4, 4]", 'cells = ["a", 4]'), ["mesh.cells[0]", "integer"]),
+    "negative_dt": (GOOD.replace("dt = 0.05", "dt = -0.05"), ["time.dt"]),
+    "t_end_zero": (GOOD.replace("t_end = 0.1", "t_end = 0.0"), ["time.t_end"]),
+    "zero_cells": (GOOD.replace("cells = [4, 4]", "cells = [0, 4]"), ["mesh.cells[0]"]),
+    "dt_and_courant": (GOOD.replace("dt = 0.05", "dt = 0.05\ncourant = 2"), ["time.dt", "time.courant"]),
+    "import_in_expression": (GOOD.replace('initial = "x"', "initial = \"__import__('os')\""), ["transport.initial"]),
+    "attribute_in_expression": (GOOD.replace('initial = "x"', 'initial = "x.real"'), ["transport.initial", "attribute"]),
+    "dunder_name": (GOOD.replace('initial = "x"', 'initial = "__class__"'), ["transport.initial"]),
+    "missing_mesh_file": (
+        GOOD.replace('kind = "rectangle"', 'kind = "gmsh"\nfile = "nope.geo"'),
+        ["mesh.file", "nope.geo"],
+    ),
+    "unknown_frame": (GOOD + '\n[method]\nframe = "lagrangain"\n', ["method.frame", "lagrangian"]),
+    "negative_kappa": (
+        GOOD.replace("advection = true", "advection = true\ndiffusion = true").replace(
+            'initial = "x"', 'initial = "x"\nkappa = -1'
+        ),
+        ["transport.kappa"],
+    ),
+    "huge_particle_count": (
+        GOOD.replace("cells = [4, 4]", "cells = [3000, 3000]") + "\n[method]\nframe = 'lagrangian'\nparticles_per_cell = 1000\n",
+        ["method.particles_per_cell", "GiB"],
+    ),
+    "velocity_missing": (GOOD.replace('velocity = ["1", "0"]\n', ""), ["transport.velocity"]),
+    "param_reserved": (GOOD + "\n[params]\nx = 1\n", ["params.x"]),
+    "wrong_dim_bounds": (GOOD.replace("bounds = [[0, 0], [1, 1]]", "bounds = [[0], [1]]"), ["mesh.bounds"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BROKEN))
+def test_broken_scene(case, tmp_path):
+    text, needles = BROKEN[case]
+    p = tmp_path / "scene.toml"
+    p.write_text(text)
+    assert_one_error(cli("check", str(p)), *needles)
+
+
+def test_good_scene_checks(tmp_path):
+    p = tmp_path / "scene.toml"
+    p.write_text(GOOD)
+    res = cli("check", str(p))
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.startswith("ok: tiny")
+
+
+def test_corrupt_gmsh_file(tmp_path):
+    geo = tmp_path / "bad.geo"
+    geo.write_text("Point(1) = {0, 0, 0\nthis is not gmsh {{{\n")
+    p = tmp_path / "scene.toml"
+    p.write_text(GOOD.replace('kind = "rectangle"', f'kind = "gmsh"\nfile = "{geo}"'))
+    assert_one_error(cli("check", str(p)), "bad.geo")
+
+
+def test_binary_scene_file(tmp_path):
+    p = tmp_path / "scene.toml"
+    p.write_bytes(b"\xff\xfe\x00garbage")
+    assert_one_error(cli("check", str(p)), "scene.toml")
+
+
+@pytest.mark.parametrize(
+    "args, needles",
+    [
+        (["check", "no-such-scene"], ["no-such-scene"]),
+        (["check", "gausian-hill"], ["gaussian-hill"]),
+        (["check", "gaussian-hill", "--set", "time.courant"], ["--set", "KEY=VALUE"]),
+        (["check", "gaussian-hill", "--set", "time.courant=[1,"], ["--set"]),
+        (["check", "gaussian-hill", "--set", "time.courant=-3"], ["time.courant"]),
+        (["check", "gaussian-hill", "--set", "mesh.cells=[0,10]"], ["mesh.cells[0]"]),
+        (["check", "gaussian-hill", "--variant", "huge"], ["--variant", "small"]),
+        (["run"], ["scene"]),
+        (["frobnicate"], ["frobnicate"]),
+    ],
+)
+def test_bad_cli(args, needles):
+    assert_one_error(cli(*args), *needles)
+
+
+def test_existing_output_folder_untouched(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    keep = out / "precious.txt"
+    keep.write_text("keep me")
+    p = tmp_path / "scene.toml"
+    p.write_text(GOOD)
+    assert_one_error(cli("run", str(p), "--out", str(out), "--quiet"), str(out), "--overwrite")
+    assert keep.read_text() == "keep me"
+    assert sorted(x.name for x in out.iterdir()) == ["precious.txt"]
