@@ -315,8 +315,8 @@ class Simulation:
 
 def particle_arrays(cloud: Any) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Positions and fields of a particle cloud for output."""
-    pos = np.asarray(cloud.positions)
-    fields = {k: np.asarray(v) for k, v in getattr(cloud, "fields", {}).items()}
+    pos = np.asarray(cloud.x)
+    fields = {k: np.asarray(cloud.field(k)) for k in cloud.field_names}
     return pos, fields
 
 
