@@ -2,7 +2,8 @@
 # Install pfem2x's Debian 12 packages if any is missing (needs root or sudo).
 set -euo pipefail
 PKGS=(python3-dolfinx python3-gmsh python3-mpi4py python3-petsc4py python3-numba
-      python3-venv python3-pip libgl1 libxrender1 make)
+      python3-venv python3-pip make
+      libgl1 libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 libxrender1)  # headless VTK (pyvista PNG)
 missing=()
 for p in "${PKGS[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -310,3 +310,38 @@ def bb_tree_cells(mesh: Any, cells: np.ndarray) -> Any:
     if NEW_API:
         return dolfinx.geometry.bb_tree(mesh, tdim, entities=ents)
     return dolfinx.geometry.BoundingBoxTree(mesh, tdim, ents)
+
+
+# --- flow ---
+
+
+def locate_boundary_facets(mesh: Any, marker: Any) -> np.ndarray:
+    """Exterior facets whose vertices all satisfy ``marker(x)`` (``x`` of shape ``(3, n)``)."""
+    fdim = mesh.topology.dim - 1
+    mesh.topology.create_connectivity(fdim, mesh.topology.dim)
+    return np.asarray(dolfinx.mesh.locate_entities_boundary(mesh, fdim, marker), dtype=np.int32)
+
+
+def dirichlet_component(V: Any, comp: int | None, facets: np.ndarray, value: Any = 0.0) -> Any:
+    """A Dirichlet condition on ``facets``: component ``comp`` of a vector space set to a
+    constant, or (``comp is None``) every component set from the Function ``value`` on ``V``."""
+    fdim = V.mesh.topology.dim - 1
+    if comp is None:
+        dofs = dolfinx.fem.locate_dofs_topological(V, fdim, facets)
+        return dolfinx.fem.dirichletbc(value, dofs)
+    Vc = V.sub(comp)
+    dofs = dolfinx.fem.locate_dofs_topological(Vc, fdim, facets)
+    return dolfinx.fem.dirichletbc(PETSc.ScalarType(value), dofs, Vc)
+
+
+def set_bc(vec: Any, bcs: list) -> None:
+    """Set the (owned) Dirichlet entries of a PETSc vector to their values."""
+    if bcs:
+        dolfinx.fem.petsc.set_bc(vec, bcs)
+
+
+def constant_nullspace(A: Any) -> Any:
+    """Attach the constant null space to ``A`` (pure-Neumann pressure); returns it."""
+    ns = PETSc.NullSpace().create(constant=True, comm=A.getComm())
+    A.setNullSpace(ns)
+    return ns

@@ -8,8 +8,11 @@ from __future__ import annotations
 
 import base64
 import csv
+import importlib.util
 import json
 import os
+import subprocess
+import sys
 import tempfile
 import warnings
 from pathlib import Path
@@ -224,10 +227,42 @@ def png_snapshot(
     if gdim == 1:
         _png_1d(path, coords, vals, title)
         return
-    try:
+    if _pyvista_usable():
         _png_pyvista(path, coords, vals, title, clim, contour)
-    except ImportError:
+    else:
         _png_matplotlib(path, coords, vals, title, clim, contour)
+
+
+_PYVISTA_OK: bool | None = None
+_PROBE = """
+import pyvista as pv
+pl = pv.Plotter(off_screen=True, window_size=(64, 64))
+pl.add_mesh(pv.Plane())
+pl.screenshot(None, return_img=True)
+"""
+
+
+def _pyvista_usable() -> bool:
+    """Whether pyvista can render off-screen here (probed once, in a child process).
+
+    Without an OpenGL stack (EGL/OSMesa) VTK aborts the whole process, so the
+    first render is tried in a subprocess; matplotlib is used if it fails.
+    """
+    global _PYVISTA_OK
+    if _PYVISTA_OK is None:
+        if os.environ.get("PFEM2X_PNG_BACKEND") in ("matplotlib", "pyvista"):
+            _PYVISTA_OK = os.environ["PFEM2X_PNG_BACKEND"] == "pyvista"
+        elif importlib.util.find_spec("pyvista") is None:
+            _PYVISTA_OK = False
+        else:
+            try:
+                res = subprocess.run(
+                    [sys.executable, "-c", _PROBE], capture_output=True, timeout=120, check=False
+                )
+                _PYVISTA_OK = res.returncode == 0
+            except (OSError, subprocess.TimeoutExpired):
+                _PYVISTA_OK = False
+    return _PYVISTA_OK
 
 
 def _png_1d(path: Any, coords: np.ndarray, vals: np.ndarray, title: str) -> None:

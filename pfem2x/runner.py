@@ -20,7 +20,7 @@ from pfem2x import compat, fem
 from pfem2x import io as pio
 from pfem2x.compat import MPI
 from pfem2x.mesh import Domain, MeshError, build_mesh
-from pfem2x.physics.base import Diverged, Solver
+from pfem2x.physics.base import Diverged, Solver  # noqa: F401 - Diverged raised here too
 from pfem2x.scene import Scene, SceneError
 
 __all__ = ["RunResult", "Simulation", "build_domain", "make_solver", "prepare_output"]
@@ -181,15 +181,18 @@ class Simulation:
         h_min = self.domain.min_h()
 
         history: list[dict[str, float]] = []
+        t_end = sc["time"]["t_end"]
+        adaptive = bool(sc["time"]["adaptive"]) and sc["time"]["courant"] is not None
         t, dt = 0.0, self.dt
+        t_good = 0.0
         courant_max = 0.0
         status, code, message = "ok", EXIT_OK, ""
         next_out = every if every > 0 else math.inf
         png_i = 0
         last_good = self.solver.state()
         cpu0, wall0 = time.process_time(), time.perf_counter()
-        step_wall = []
-
+        step_wall: list[float] = []
+        dts: list[float] = []
         last_out = [-1]
 
         def write_outputs(step: int, t: float) -> None:
@@ -197,18 +200,17 @@ class Simulation:
             if fw is not None:
                 fw.write(self.solver.fields(), t)
             if pw is not None:
-                c = self.solver.cloud()
-                pw.write(*particle_arrays(c), t, step)
+                pw.write(*particle_arrays(self.solver.cloud()), t, step)
 
         def snapshots(t: float, final: bool = False) -> None:
             nonlocal png_i
             while png_i < len(png_times) and (t >= png_times[png_i] - 0.5 * dt or final):
                 if outp["png"]:
-                    name, u = next(iter(self.solver.fields().items()))
+                    name, u = self.solver.snapshot_field()
                     pio.png_snapshot(
                         out / f"{name}_t{png_times[png_i]:08.3f}.png",
                         u,
-                        f"{sc.name}  {name}  t = {t:.4g}",
+                        f"{sc.name}  {name}  {self.solver.time_label(t)}",
                     )
                 png_i += 1
                 if final:
@@ -224,21 +226,37 @@ class Simulation:
 
         bar = self._progress(self.steps)
         step = 0
+        max_steps = sc["time"]["max_steps"]
         try:
-            for step in range(1, self.steps + 1):
+            while t < t_end - 1e-12 * max(1.0, t_end):
+                step += 1
+                if step > max_steps:
+                    raise Diverged(f"time.max_steps = {max_steps} reached at t = {t:.6g}")
                 ts = time.perf_counter()
                 vmax = self.solver.max_velocity(t)
+                if adaptive:
+                    # Keep the requested Courant number; grow at most 20 % per step, and
+                    # split the remainder rather than end on a sliver of a step.
+                    if vmax > 0:
+                        dt = min(sc["time"]["courant"] * h_min / vmax, 1.2 * dt)
+                    left = t_end - t
+                    dt = left if dt >= left * (1 - 1e-9) else min(dt, 0.5 * left)
                 courant_max = max(courant_max, vmax * dt / h_min)
                 self.solver.step(t, dt)
-                t = step * dt if step < self.steps else sc["time"]["t_end"]
+                if adaptive:
+                    t = t_end if dt == t_end - t else t + dt
+                else:
+                    t = step * self.dt if step < self.steps else t_end
                 self.solver.check_finite(t)
                 step_wall.append(time.perf_counter() - ts)
+                dts.append(dt)
                 d = self.solver.diagnostics(t)
                 d.update({"step": step, "t": t})
                 history.append(d)
                 if csvw:
                     csvw.write(_row(d, step_wall[-1], self.solver))
                 last_good = self.solver.state()
+                t_good = t
                 if t >= next_out - 0.5 * dt:
                     write_outputs(step, t)
                     while next_out <= t + 0.5 * dt:
@@ -248,11 +266,15 @@ class Simulation:
                     bar.update(1)
         except FloatingPointError as exc:  # Diverged, or a linear solver that diverged
             status, code = "diverged", EXIT_DIVERGED
-            message = f"diverged at step {step}, t = {t:.6g}: {exc}"
+            message = (
+                f"diverged in step {step} (t = {t_good:.6g} -> {t_good + dt:.6g}, "
+                f"{self.solver.time_label(t_good + dt)}): {exc}"
+            )
             self.solver.restore(last_good)
             lg = pio.FieldWriter(comm, out / "last_good.xdmf", self.domain.mesh)
-            lg.write(self.solver.fields(), t - dt)
+            lg.write(self.solver.fields(), t_good)
             lg.close()
+            t = t_good
         finally:
             if bar is not None:
                 bar.close()
@@ -278,7 +300,9 @@ class Simulation:
             "message": message,
             "steps": len(history) - 1,
             "t_end": float(t),
-            "dt": float(dt),
+            "dt": float(np.max(dts)) if dts else float(dt),
+            "dt_min": float(np.min(dts)) if dts else float(dt),
+            "adaptive_dt": adaptive,
             "courant_max": float(courant_max),
             "h_min": float(h_min),
             "cells": self.domain.num_cells_global(),

@@ -190,6 +190,12 @@ def strings_check(key: str, v: Any) -> list[str]:
     return list_of(string, 0, 100)(key, v)
 
 
+#: Boundary kinds of ``[flow]`` box sides, and the side names.
+FLOW_BOUNDARIES = ("slip", "noslip", "inflow", "outflow")
+FLOW_SIDES = ("left", "right", "bottom", "top", "front", "back")
+#: Keys of a ``[phases.NAME]`` table.
+PHASE_KEYS = ("density", "viscosity", "region")
+
 SCHEMA: dict[str, dict[str, Key]] = {
     "scene": {
         "name": Key(string, required=True, doc="scene name"),
@@ -219,6 +225,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "dt": Key(number(0.0, lo_open=True)),
         "courant": Key(number(0.0, 1000.0, lo_open=True)),
         "max_steps": Key(integer(1), 10_000_000),
+        "adaptive": Key(boolean, False, doc="re-evaluate dt every step from time.courant"),
     },
     "method": {
         "frame": Key(choice("lagrangian", "eulerian", "characteristic"), "eulerian"),
@@ -227,6 +234,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "max_particles_per_cell": Key(integer(0, 100_000), 0),
         "projection": Key(choice("linear", "average"), "linear"),
         "substep_courant": Key(number(0.0, 10.0, lo_open=True), 0.5),
+        "source_integration": Key(
+            choice("path", "theta"),
+            "path",
+            doc="transport source along particle paths: path = q(x_p(s), s) at the sub-step "
+            "times; theta = eq. 2.9, (1-theta) q frozen at t^n along the path + theta q^{n+1}",
+        ),
         "theta": Key(number(0.0, 1.0), 0.5),
         "supg": Key(boolean, False),
         "preconditioner": Key(choice("auto", "hypre", "gamg", "jacobi", "lu", "none"), "auto"),
@@ -250,9 +263,24 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "exact": Key(expr_text),
         "boundary_value": Key(expr_text, doc="Dirichlet value on the non-periodic boundary"),
     },
+    "flow": {
+        "gravity": Key(list_of(number(), 1, 3), doc="gravity vector (effects.gravity)"),
+        "velocity_scale": Key(expr_text, 0.0, doc="speed for time.courant while at rest"),
+        "initial_velocity": Key(list_of(expr_text, 1, 3), doc="initial velocity (default 0)"),
+        "time_factor": Key(expr_text, 1.0, doc="reported time tau = t * time_factor"),
+        "walls": Key(choice(*FLOW_BOUNDARIES), "slip", doc="kind of every box side not named"),
+        **{s: Key(choice(*FLOW_BOUNDARIES), doc=f"{s} box side") for s in FLOW_SIDES},
+        "inflow_velocity": Key(list_of(expr_text, 1, 3), doc="velocity on inflow sides"),
+        "interface_width": Key(number(0.0, lo_open=True), 1.5, doc="smoothing half-width / H"),
+        "reinit_every": Key(integer(0), 1, doc="level-set redistancing every N steps (0: never)"),
+        "max_speed": Key(expr_text, 0.0, doc="|u| above this is divergence (0: no check)"),
+        "extra_pass": Key(boolean, False, doc="PFEM-2: second pass with theta = 1"),
+        "rtol": Key(number(0.0, 1.0, lo_open=True), 1e-8, doc="linear solver tolerance"),
+        "quadrature_degree": Key(integer(1, 20), 4, doc="quadrature degree of the flow forms"),
+    },
 }
 #: Sections whose keys are free-form.
-FREE_SECTIONS = {"params", "variants", "flow", "phases", "case"}
+FREE_SECTIONS = {"params", "variants", "phases", "case"}
 
 
 @dataclass
@@ -307,7 +335,12 @@ class Scene:
     def resolved_toml(self) -> str:
         """The scene with defaults and overrides applied, as TOML text."""
         out: dict[str, Any] = {"params": dict(self.params)} if self.params else {}
+        physics = self.sections["scene"]["physics"]
         for sec, d in self.sections.items():
+            if sec in ("transport", "flow", "phases") and sec != physics and not (
+                sec == "phases" and physics == "flow"
+            ):
+                continue  # another physics' defaults
             out[sec] = {k: v for k, v in d.items() if not k.startswith("_")}
         return dump_toml(out)
 
@@ -448,7 +481,7 @@ def validate(raw: dict[str, Any], source: str = "<scene>", base_dir: Path | None
                     raise SceneError(f"{sec}.{k}: required")
                 out[k] = copy.deepcopy(spec.default)
         sections[sec] = out
-    for sec in ("flow", "phases"):
+    for sec in ("phases",):
         if sec in raw:
             if not isinstance(raw[sec], dict):
                 raise SceneError(f"{sec}: expected a table")
@@ -535,6 +568,8 @@ def _check_consistency(scene: Scene) -> None:
                 raise SceneError(f"transport.{key}: required when effects.{eff_name} = true")
         if t["courant"] is not None and not eff["advection"]:
             raise SceneError("time.courant: needs effects.advection = true (use time.dt)")
+    if phys == "flow":
+        _check_flow(scene)
     # Compile every expression now so that bad ones are refused by `check`.
     gdim = {"interval": 1, "rectangle": 2, "box": 3}.get(m["kind"], 3)
     try:
@@ -550,6 +585,56 @@ def _check_consistency(scene: Scene) -> None:
                         raise SceneError(f"transport.kappa: must be >= 0, got {e.value():g}")
     except ExpressionError as exc:
         raise SceneError(str(exc)) from None
+
+
+def _check_flow(scene: Scene) -> None:
+    """``[flow]`` and ``[phases.*]``: densities > 0, viscosities >= 0, compiled expressions."""
+    phases = scene.sections.get("phases", {})
+    two = scene.effects["two_phase"]
+    if not phases:
+        raise SceneError("phases: a flow scene needs at least one [phases.NAME] table")
+    for name, ph in phases.items():
+        if not isinstance(ph, dict):
+            raise SceneError(f"phases.{name}: expected a table [phases.{name}]")
+        for k in ph:
+            if k not in PHASE_KEYS:
+                raise _unknown(k, list(PHASE_KEYS), f"phases.{name}.")
+        if "density" not in ph:
+            raise SceneError(f"phases.{name}.density: required")
+        ph["density"] = number(0.0, lo_open=True)(f"phases.{name}.density", ph["density"])
+        ph["viscosity"] = number(0.0)(f"phases.{name}.viscosity", ph.get("viscosity", 0.0))
+        if "region" in ph:
+            expr_text(f"phases.{name}.region", ph["region"])
+    with_region = [n for n, ph in phases.items() if "region" in ph]
+    if two and (len(phases) != 2 or len(with_region) != 1):
+        raise SceneError(
+            "phases: effects.two_phase needs exactly two [phases.*] tables, "
+            "one of them with a region"
+        )
+    if not two and len(phases) != 1:
+        raise SceneError("phases: more than one phase needs effects.two_phase = true")
+    fl = scene["flow"]
+    if scene.effects["gravity"] and fl["gravity"] is None:
+        raise SceneError("flow.gravity: required when effects.gravity = true")
+    t = scene["time"]
+    try:
+        for k in ("velocity_scale", "time_factor", "max_speed"):
+            scene.expr("flow", k)
+        for k in ("initial_velocity", "inflow_velocity"):
+            if fl[k] is not None:
+                scene.vector_expr("flow", k, min(scene.gdim, len(fl[k])))
+        for name, ph in phases.items():
+            if "region" in ph:
+                Expression(ph["region"], scene.params, f"phases.{name}.region")
+        vs = scene.expr("flow", "velocity_scale")
+    except ExpressionError as exc:
+        raise SceneError(str(exc)) from None
+    if t["courant"] is not None and fl["initial_velocity"] is None:
+        if not vs.constant or vs.value() <= 0:
+            raise SceneError(
+                "flow.velocity_scale: time.courant on a fluid at rest needs a constant "
+                "velocity_scale > 0 (or give time.dt)"
+            )
 
 
 def _find_mesh_file(name: str, base_dir: Path) -> Path:

@@ -9,7 +9,9 @@ import pytest
 
 
 def run(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "pfem2x", *args], capture_output=True, text=True, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "pfem2x", *args], capture_output=True, text=True, timeout=600
+    )
 
 
 def test_scenes_lists_builtins():
@@ -21,7 +23,17 @@ def test_scenes_lists_builtins():
 @pytest.fixture(scope="module")
 def small_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("run") / "gh"
-    res = run("run", "gaussian-hill", "--variant", "small", "--out", str(out), "--set", "time.courant=2", "--quiet")
+    res = run(
+        "run",
+        "gaussian-hill",
+        "--variant",
+        "small",
+        "--out",
+        str(out),
+        "--set",
+        "time.courant=2",
+        "--quiet",
+    )
     assert res.returncode == 0, res.stderr
     return out, res
 
@@ -29,7 +41,18 @@ def small_run(tmp_path_factory):
 def test_summary(small_run):
     out, res = small_run
     s = json.loads((out / "summary.json").read_text())
-    for key in ("scene", "frame", "steps", "dt", "courant_max", "wall_seconds", "status", "dolfinx_version", "mpi_size", "metrics"):
+    for key in (
+        "scene",
+        "frame",
+        "steps",
+        "dt",
+        "courant_max",
+        "wall_seconds",
+        "status",
+        "dolfinx_version",
+        "mpi_size",
+        "metrics",
+    ):
         assert key in s, key
     assert s["status"] == "ok"
     assert s["scene"] == "gaussian-hill"
@@ -57,5 +80,7 @@ def test_no_overwrite_without_flag_then_overwrite(small_run):
     out, _ = small_run
     res = run("run", "gaussian-hill", "--variant", "small", "--out", str(out), "--quiet")
     assert res.returncode == 2 and res.stderr.startswith("error:")
-    res = run("run", "gaussian-hill", "--variant", "small", "--out", str(out), "--quiet", "--overwrite")
+    res = run(
+        "run", "gaussian-hill", "--variant", "small", "--out", str(out), "--quiet", "--overwrite"
+    )
     assert res.returncode == 0, res.stderr

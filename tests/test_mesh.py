@@ -34,7 +34,9 @@ def test_geometry_table(kind, bounds, cells):
     for i in range(t.tdim + 1):
         lam = np.einsum("cij,cj->ci", t.inv_map, t.coords[:, i] - t.origin)
         full = np.column_stack([1 - lam.sum(axis=1), lam])
-        np.testing.assert_allclose(full, np.tile(np.eye(t.tdim + 1)[i], (t.num_cells, 1)), atol=1e-12)
+        np.testing.assert_allclose(
+            full, np.tile(np.eye(t.tdim + 1)[i], (t.num_cells, 1)), atol=1e-12
+        )
     # The neighbour across facet i shares every vertex but i, and is unique.
     c, i = np.nonzero(t.neighbours >= 0)
     nb = t.neighbours[c, i]

@@ -24,7 +24,10 @@ def scene(**over):
     raw = json.loads(json.dumps(BASE))
     for dotted, v in over.items():
         sec, key = dotted.split("__")
-        raw.setdefault(sec, {})[key] = v
+        if v is None:
+            raw.get(sec, {}).pop(key, None)
+        else:
+            raw.setdefault(sec, {})[key] = v
     return validate(raw)
 
 
@@ -37,7 +40,8 @@ def test_removing_an_effect_removes_its_term():
     for k in range(4):
         on.step(0.05 * k, 0.05)
         off.step(0.05 * k, 0.05)
-    # Diffusion decays the sine mode by exp(-2 pi^2 kappa t) (0.961 at t = 0.2); without it nothing moves.
+    # Diffusion decays the sine mode by exp(-2 pi^2 kappa t) (0.961 at t = 0.2);
+    # without it nothing moves.
     assert on.diagnostics(0.2)["max"] < 0.975 * peak0
     assert off.diagnostics(0.2)["max"] == pytest.approx(peak0, rel=1e-10)
 
@@ -61,7 +65,7 @@ def test_divergence_guard(shared_tmp):
     res = Simulation(s, shared_tmp / "div", quiet=True).run()
     assert res.status == "diverged" and res.exit_code == 3
     msg = res.summary["message"]
-    assert "diverged at step" in msg and ("not finite" in msg or "NaN/Inf" in msg), msg
+    assert "diverged in step" in msg and ("not finite" in msg or "NaN/Inf" in msg), msg
     assert res.summary["steps"] < 399
     if MPI.COMM_WORLD.rank == 0:
         assert (shared_tmp / "div" / "last_good.xdmf").is_file()
@@ -77,3 +81,22 @@ def test_parallel_run_matches_serial_metric(shared_tmp):
     assert peak == pytest.approx(np.exp(-2 * np.pi**2 * 0.01 * 0.2), rel=0.02)
     assert res.summary["mpi_size"] == MPI.COMM_WORLD.size
     assert fem.COUNTERS["solves"] >= 4
+
+
+def test_adaptive_dt_holds_the_courant_number(shared_tmp):
+    # Speed grows 1 -> 3 over the run: a fixed step would triple its Courant number.
+    s = scene(
+        effects__diffusion=False,
+        effects__advection=True,
+        transport__velocity=["1 + t", "0"],
+        transport__boundary_value=0,
+        time__dt=None,
+        time__courant=2.0,
+        time__adaptive=True,
+        time__t_end=2.0,
+    )
+    res = Simulation(s, shared_tmp / "ad", quiet=True).run()
+    sm = res.summary
+    assert sm["status"] == "ok" and res.history[-1]["t"] == pytest.approx(2.0)
+    assert 1.9 <= sm["courant_max"] <= 2.0 * (1 + 1e-9)
+    assert sm["dt_min"] < 0.5 * sm["dt"]  # the step shrank as the flow sped up

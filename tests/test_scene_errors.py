@@ -5,7 +5,6 @@ Each case runs the real command line (`python -m pfem2x check|run ...`).
 
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
@@ -49,15 +48,30 @@ def assert_one_error(res, *needles):
 
 BROKEN = {
     "bad_toml": (GOOD.replace('name = "tiny"', "name = tiny ="), ["not valid TOML"]),
-    "unknown_key": (GOOD.replace("t_end = 0.1", "t_end = 0.1\ncourrant = 3"), ["time.courrant", "time.courant"]),
+    "unknown_key": (
+        GOOD.replace("t_end = 0.1", "t_end = 0.1\ncourrant = 3"),
+        ["time.courrant", "time.courant"],
+    ),
     "unknown_section": (GOOD + "\n[mesch]\nx = 1\n", ["mesch", "mesh"]),
-    "wrong_type": (GOOD.replace("cells = [4, 4]", 'cells = ["a", 4]'), ["mesh.cells[0]", "integer"]),
+    "wrong_type": (
+        GOOD.replace("cells = [4, 4]", 'cells = ["a", 4]'),
+        ["mesh.cells[0]", "integer"],
+    ),
     "negative_dt": (GOOD.replace("dt = 0.05", "dt = -0.05"), ["time.dt"]),
     "t_end_zero": (GOOD.replace("t_end = 0.1", "t_end = 0.0"), ["time.t_end"]),
     "zero_cells": (GOOD.replace("cells = [4, 4]", "cells = [0, 4]"), ["mesh.cells[0]"]),
-    "dt_and_courant": (GOOD.replace("dt = 0.05", "dt = 0.05\ncourant = 2"), ["time.dt", "time.courant"]),
-    "import_in_expression": (GOOD.replace('initial = "x"', "initial = \"__import__('os')\""), ["transport.initial"]),
-    "attribute_in_expression": (GOOD.replace('initial = "x"', 'initial = "x.real"'), ["transport.initial", "attribute"]),
+    "dt_and_courant": (
+        GOOD.replace("dt = 0.05", "dt = 0.05\ncourant = 2"),
+        ["time.dt", "time.courant"],
+    ),
+    "import_in_expression": (
+        GOOD.replace('initial = "x"', "initial = \"__import__('os')\""),
+        ["transport.initial"],
+    ),
+    "attribute_in_expression": (
+        GOOD.replace('initial = "x"', 'initial = "x.real"'),
+        ["transport.initial", "attribute"],
+    ),
     "dunder_name": (GOOD.replace('initial = "x"', 'initial = "__class__"'), ["transport.initial"]),
     "missing_mesh_file": (
         GOOD.replace('kind = "rectangle"', 'kind = "gmsh"\nfile = "nope.geo"'),
@@ -71,12 +85,16 @@ BROKEN = {
         ["transport.kappa"],
     ),
     "huge_particle_count": (
-        GOOD.replace("cells = [4, 4]", "cells = [3000, 3000]") + "\n[method]\nframe = 'lagrangian'\nparticles_per_cell = 1000\n",
+        GOOD.replace("cells = [4, 4]", "cells = [3000, 3000]")
+        + "\n[method]\nframe = 'lagrangian'\nparticles_per_cell = 1000\n",
         ["method.particles_per_cell", "GiB"],
     ),
     "velocity_missing": (GOOD.replace('velocity = ["1", "0"]\n', ""), ["transport.velocity"]),
     "param_reserved": (GOOD + "\n[params]\nx = 1\n", ["params.x"]),
-    "wrong_dim_bounds": (GOOD.replace("bounds = [[0, 0], [1, 1]]", "bounds = [[0], [1]]"), ["mesh.bounds"]),
+    "wrong_dim_bounds": (
+        GOOD.replace("bounds = [[0, 0], [1, 1]]", "bounds = [[0], [1]]"),
+        ["mesh.bounds"],
+    ),
 }
 
 

@@ -50,6 +50,14 @@ class Solver:
         """Mesh functions to write, by name."""
         return {}
 
+    def snapshot_field(self) -> tuple[str, Any]:
+        """``(name, function)`` rendered in PNG snapshots (default: the first field)."""
+        return next(iter(self.fields().items()))
+
+    def time_label(self, t: float) -> str:
+        """How time ``t`` is shown to users (e.g. in another time unit)."""
+        return f"t = {t:.4g}"
+
     def cloud(self) -> Any | None:
         """The particle cloud, if the solver has one."""
         return None
