@@ -11,6 +11,7 @@ NP        ?= 2
 # OpenMPI refuses root without this flag; harmless otherwise.
 MPIRUN    ?= mpirun $(shell [ "$$(id -u)" = 0 ] && mpirun --version 2>/dev/null | grep -q "Open MPI" && echo --allow-run-as-root --oversubscribe)
 PYTEST_ARGS ?=
+LINT_DIRS := $(wildcard pfem2x tests demos benchmarks)
 
 .PHONY: help setup demo test lint format test-serial test-mpi setup-011 test-011 clean
 
@@ -30,8 +31,8 @@ demo: setup
 	$(VENV)/bin/pfem2x run gaussian-hill --out runs/demo --overwrite
 
 lint: setup
-	$(VENV)/bin/ruff check pfem2x tests demos benchmarks
-	$(VENV)/bin/ruff format --check pfem2x tests demos benchmarks
+	$(VENV)/bin/ruff check $(LINT_DIRS)
+	$(VENV)/bin/ruff format --check $(LINT_DIRS)
 
 test-serial: setup
 	$(PY) -m pytest -q $(PYTEST_ARGS)
@@ -53,8 +54,8 @@ test-011: setup-011
 	$(VENV011)/bin/mpirun -n $(NP) $(PY011) -m pytest -q -m mpi -p no:cacheprovider $(PYTEST_ARGS)
 
 format: setup
-	$(VENV)/bin/ruff format pfem2x tests demos benchmarks
-	$(VENV)/bin/ruff check --fix pfem2x tests demos benchmarks
+	$(VENV)/bin/ruff format $(LINT_DIRS)
+	$(VENV)/bin/ruff check --fix $(LINT_DIRS)
 
 clean:
 	rm -rf $(VENV) $(VENV011) runs .pytest_cache
