@@ -1,0 +1,40 @@
+"""Every demo script runs (small variants): serially, and under `mpirun -n 2` (marker mpi).
+
+Demos are literate scripts executed in-process with ``runpy``, so under
+``mpirun -n 2 pytest -m mpi`` all ranks execute them collectively.
+"""
+
+import os
+import runpy
+from pathlib import Path
+
+import pytest
+
+DEMOS = sorted((Path(__file__).resolve().parent.parent / "demos").glob("*.py"))
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("path", DEMOS, ids=[p.stem for p in DEMOS])
+def test_demo_runs(path, shared_tmp, monkeypatch):
+    monkeypatch.setenv("PFEM2X_DEMO_SMALL", "1")
+    monkeypatch.setenv("PFEM2X_DEMO_OUT", str(shared_tmp))
+    monkeypatch.setenv("MPLBACKEND", "Agg")
+    monkeypatch.chdir(shared_tmp)
+    runpy.run_path(str(path), run_name="__main__")
+
+
+def test_demos_are_jupytext_percent_scripts():
+    assert DEMOS, "no demos found"
+    for p in DEMOS:
+        text = p.read_text()
+        assert "format_name: percent" in text and "# %%" in text, p.name
+
+
+def test_demo_converts_to_notebook(tmp_path):
+    jupytext = pytest.importorskip("jupytext")
+    nb = jupytext.read(DEMOS[0])
+    assert any(c.cell_type == "markdown" for c in nb.cells)
+    assert any(c.cell_type == "code" for c in nb.cells)
+    os.makedirs(tmp_path, exist_ok=True)
+    jupytext.write(nb, tmp_path / "demo.ipynb")
+    assert (tmp_path / "demo.ipynb").stat().st_size > 0
