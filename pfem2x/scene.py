@@ -337,8 +337,10 @@ class Scene:
         out: dict[str, Any] = {"params": dict(self.params)} if self.params else {}
         physics = self.sections["scene"]["physics"]
         for sec, d in self.sections.items():
-            if sec in ("transport", "flow", "phases") and sec != physics and not (
-                sec == "phases" and physics == "flow"
+            if (
+                sec in ("transport", "flow", "phases")
+                and sec != physics
+                and not (sec == "phases" and physics == "flow")
             ):
                 continue  # another physics' defaults
             out[sec] = {k: v for k, v in d.items() if not k.startswith("_")}
