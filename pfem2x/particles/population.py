@@ -1,0 +1,192 @@
+"""Population control (section 4): keep every cell between ``nmin`` and ``nmax`` particles.
+
+* Cells with too many particles lose the most crowded ones first (the
+  particle with the smallest nearest-neighbour distance, repeatedly).
+  Removing carries no value error beyond the lost sample.
+* Cells with too few get new particles at the best of a few random
+  candidates (the one farthest from the existing particles). Their values
+  come from the neighbouring particles, error ``o(T'' h²)`` (eq. 4.15): a
+  linear least-squares fit of the particles of the cell (exact for linear
+  fields), else of the cell and its facet neighbours, else their
+  inverse-distance average; only when no particle is near does a mesh
+  field (``fallback``) give the value (eq. 4.14), and without one the new
+  particle gets 0 (counted as ``unfilled``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from pfem2x.particles import _kernels as K
+from pfem2x.particles.cloud import Cloud
+
+__all__ = ["PopulationStats", "rebalance", "seed_inflow"]
+
+
+@dataclass
+class PopulationStats:
+    """What one population pass did on this rank.
+
+    Attributes
+    ----------
+    added, removed:
+        Particles created / deleted.
+    from_fit, from_idw, from_mesh, unfilled:
+        How the new particles got their values.
+    """
+
+    added: int = 0
+    removed: int = 0
+    from_fit: int = 0
+    from_idw: int = 0
+    from_mesh: int = 0
+    unfilled: int = 0
+
+
+def rebalance(
+    cloud: Cloud,
+    nmin: int,
+    nmax: int = 0,
+    seed: int = 0,
+    fallback: Mapping[str, Any] | None = None,
+    cells: np.ndarray | None = None,
+    candidates: int = 8,
+) -> PopulationStats:
+    """Add / remove particles so each owned cell has ``nmin <= count <= nmax``.
+
+    Parameters
+    ----------
+    cloud:
+        The particles (sorted by cell as a side effect).
+    nmin, nmax:
+        Bounds per cell (``nmax = 0``: no upper bound).
+    seed:
+        Random seed of the new positions (vary it between calls, e.g. the
+        step number); positions depend on it and the cell's input index only.
+    fallback:
+        ``{field: P1 Function}`` used for new particles with no particle near.
+    cells:
+        Optional bool mask over owned cells: only these are touched.
+    candidates:
+        Random candidate positions tried per new particle.
+
+    Returns
+    -------
+    PopulationStats
+    """
+    pm = cloud.pmesh
+    offsets = cloud.sort_by_cell()
+    only = np.zeros(0, dtype=bool) if cells is None else np.asarray(cells, dtype=bool)
+    plan = K.population_plan(offsets, pm.n_owned, int(nmin), int(nmax), only)
+    stats = PopulationStats()
+    if not plan.any():
+        return stats
+    n = cloud.n
+    order = np.arange(n, dtype=np.int64)
+    names = cloud.field_names
+    widths = [cloud.field2d(nm).shape[1] for nm in names]
+    vals = (
+        np.ascontiguousarray(np.concatenate([cloud.field2d(nm) for nm in names], axis=1))
+        if names
+        else np.zeros((n, 0))
+    )
+    nx, ncell, nvals, src = K.population_add(
+        cloud.x,
+        vals,
+        order,
+        offsets,
+        plan,
+        pm.keys,
+        np.uint64(seed),
+        pm.coords,
+        pm.nbr,
+        bool(names),
+        int(candidates),
+    )
+    remove = np.zeros(n, dtype=bool)
+    K.population_remove(cloud.x, order, offsets, plan, remove)
+    stats.removed = cloud.remove(remove)
+    values: dict[str, np.ndarray] = {}
+    o = 0
+    for nm, w in zip(names, widths, strict=True):
+        values[nm] = nvals[:, o : o + w]
+        o += w
+    if names:
+        stats.from_fit = int(np.isin(src, (1, 2)).sum())
+        stats.from_idw = int((src == 3).sum())
+        none = src == 0
+        if none.any() and fallback:
+            from pfem2x.particles.transfer import _eval_at  # noqa: PLC0415
+
+            for nm, f in fallback.items():
+                if nm in values:
+                    values[nm][none] = _eval_at(pm, f, nx[none], ncell[none]).reshape(
+                        int(none.sum()), -1
+                    )
+            stats.from_mesh = int(none.sum())
+        else:
+            stats.unfilled = int(none.sum())
+    sl = cloud.append(nx, ncell, values)
+    stats.added = sl.stop - sl.start
+    cloud.sort_by_cell()
+    return stats
+
+
+def seed_inflow(
+    cloud: Cloud,
+    per_cell: int,
+    values: Mapping[str, float | Callable[[np.ndarray], np.ndarray]] | None = None,
+    seed: int = 0,
+) -> int:
+    """Top up the cells touching inflow facets to ``per_cell`` particles (inflow hook).
+
+    Parameters
+    ----------
+    cloud:
+        The particles; inflow facets are marked on its :class:`ParticleMesh`.
+    per_cell:
+        Target count in inflow cells.
+    values:
+        ``{field: constant or callable x (m, gdim) -> (m,) / (m, k)}`` for the
+        new particles (the inflow boundary condition); other fields are 0.
+    seed:
+        Random seed (vary it between calls).
+
+    Returns
+    -------
+    int
+        Particles added on this rank.
+    """
+    pm = cloud.pmesh
+    mask = pm.inflow_facets[: pm.n_owned].any(axis=1)
+    if not mask.any():
+        return 0
+    offsets = cloud.sort_by_cell()
+    plan = K.population_plan(offsets, pm.n_owned, int(per_cell), 0, mask)
+    nx, ncell, _, _ = K.population_add(
+        cloud.x,
+        np.zeros((cloud.n, 0)),
+        np.arange(cloud.n, dtype=np.int64),
+        offsets,
+        plan,
+        pm.keys,
+        np.uint64(seed),
+        pm.coords,
+        pm.nbr,
+        False,
+        8,
+    )
+    vals: dict[str, np.ndarray] = {}
+    m = len(nx)
+    for nm, v in (values or {}).items():
+        k = cloud.field2d(nm).shape[1]
+        a = np.asarray(v(nx) if callable(v) else v, dtype=np.float64)
+        if a.size == m * k and a.ndim >= 1 and a.shape[0] == m:
+            a = a.reshape(m, k)
+        vals[nm] = np.broadcast_to(a, (m, k)).copy()
+    sl = cloud.append(nx, ncell, vals)
+    return sl.stop - sl.start

@@ -1,0 +1,151 @@
+"""Particles → P1 projection and P1 → particles interpolation."""
+
+import numpy as np
+import pytest
+
+from pfem2x import compat
+from pfem2x.compat import MPI, dolfinx
+from pfem2x.mesh import build_mesh
+from pfem2x.particles import Cloud, add_increment, evaluate, interpolate, project, seed_cells
+
+
+def _setup(comm, n=8, per_cell=8, seed=1, kind="rectangle"):
+    if kind == "rectangle":
+        d = build_mesh(comm, "rectangle", [[0.0, 0.0], [1.0, 1.0]], [n, n])
+    else:
+        d = build_mesh(comm, "box", [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]], [n, n, n])
+    cl = Cloud(d, {"T": (), "u": (d.gdim,)})
+    seed_cells(cl, per_cell, seed=seed)
+    V = compat.function_space(d.mesh, 1)
+    return d, cl, V
+
+
+def _nodal_error(comm, V, f, exact):
+    xx = V.tabulate_dof_coordinates()[:, : V.mesh.geometry.dim]
+    n = V.dofmap.index_map.size_local
+    e = np.abs(f.x.array[:n] - exact(xx[:n])).max() if n else 0.0
+    return comm.allreduce(e, op=MPI.MAX)
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("kind", ["rectangle", "box"])
+def test_linear_method_reproduces_linear_field(comm, kind):
+    d, cl, V = _setup(comm, n=6 if kind == "rectangle" else 3, kind=kind)
+    g = d.gdim
+
+    def lin(x):
+        return 1.0 + 2.0 * x[:, 0] - 3.0 * x[:, 1] + (0.5 * x[:, 2] if g == 3 else 0.0)
+
+    cl["T"] = lin(cl.x)
+    T = dolfinx.fem.Function(V)
+    st = project(cl, "T", T, method="linear")
+    assert st.empty == 0
+    assert _nodal_error(comm, V, T, lin) < 1e-11
+    # the average method is exact for constants only
+    cl["T"] = 4.25
+    project(cl, "T", T, method="average")
+    assert _nodal_error(comm, V, T, lambda x: np.full(len(x), 4.25)) < 1e-13
+    cl["T"] = lin(cl.x)
+    project(cl, "T", T, method="average")
+    assert _nodal_error(comm, V, T, lin) > 1e-3  # not exact: the test can fail
+
+
+@pytest.mark.mpi
+def test_vector_projection_and_increment(comm):
+    d, cl, V = _setup(comm)
+    W = compat.function_space(d.mesh, 1, (2,))
+    cl["u"] = np.stack([cl.x[:, 0] + 2 * cl.x[:, 1], 3 - cl.x[:, 0]], axis=1)
+    u = dolfinx.fem.Function(W)
+    project(cl, "u", u)
+    back = evaluate(cl, u)
+    assert np.allclose(back, cl["u"], atol=1e-11)
+    # increments are added, never overwrite sub-cell detail
+    rng = np.random.default_rng(comm.rank)
+    detail = rng.random(cl.n)
+    cl["T"] = detail
+    dT = dolfinx.fem.Function(V)
+    dT.interpolate(lambda x: 0.5 + x[0])
+    add_increment(cl, "T", dT)
+    assert np.allclose(cl["T"], detail + 0.5 + cl.x[:, 0], atol=1e-12)
+    interpolate(cl, "T", dT)
+    assert np.allclose(cl["T"], 0.5 + cl.x[:, 0], atol=1e-12)
+
+
+def _smooth(x):
+    return np.sin(2.0 * x[:, 0]) * np.cos(1.5 * x[:, 1])
+
+
+@pytest.mark.parametrize("method,min_order", [("linear", 0.75), ("average", 0.6)])
+def test_projection_converges_with_particle_density(comm, method, min_order):
+    """Fixed H, finer particles: error to the method's dense limit falls like h^order.
+
+    Measured (random seeding, h = H / sqrt(N), N = 8..512, 3 seeds): linear
+    0.92, average 0.76 (sampling noise of random particles, ideal 1); the
+    assert leaves a margin.
+    """
+    d = build_mesh(comm, "rectangle", [[0.0, 0.0], [1.0, 1.0]], [6, 6])
+    V = compat.function_space(d.mesh, 1)
+    ref = dolfinx.fem.Function(V)
+    big = Cloud(d, {"T": ()})
+    seed_cells(big, 4096, seed=99)
+    big["T"] = _smooth(big.x)
+    project(big, "T", ref, method=method)
+    errs, hs = [], []
+    for N in (8, 32, 128, 512):
+        e = []
+        for s in range(3):
+            cl = Cloud(d, {"T": ()})
+            seed_cells(cl, N, seed=10 + s)
+            cl["T"] = _smooth(cl.x)
+            T = dolfinx.fem.Function(V)
+            project(cl, "T", T, method=method)
+            n = V.dofmap.index_map.size_local
+            loc = np.sum((T.x.array[:n] - ref.x.array[:n]) ** 2)
+            e.append(np.sqrt(comm.allreduce(loc, op=MPI.SUM)))
+        errs.append(np.mean(e))
+        hs.append(1.0 / 6 / np.sqrt(N))
+    order = np.polyfit(np.log(hs), np.log(errs), 1)[0]
+    assert order >= min_order, (method, errs, order)
+
+
+@pytest.mark.parametrize("method,min_order", [("linear", 1.7), ("average", 0.85)])
+def test_projection_converges_with_mesh_refinement(comm, method, min_order):
+    """H and h refined together (16 particles per cell): max nodal error vs exact values.
+
+    Measured: linear 1.89, average 0.98 (one-sided patches at the boundary
+    bias the average by O(H)).
+    """
+    errs, hs = [], []
+    for n in (4, 8, 16):
+        d = build_mesh(comm, "rectangle", [[0.0, 0.0], [1.0, 1.0]], [n, n])
+        V = compat.function_space(d.mesh, 1)
+        cl = Cloud(d, {"T": ()})
+        seed_cells(cl, 16, seed=5)
+        cl["T"] = _smooth(cl.x)
+        T = dolfinx.fem.Function(V)
+        project(cl, "T", T, method=method)
+        errs.append(_nodal_error(comm, V, T, _smooth))
+        hs.append(1.0 / n)
+    order = np.polyfit(np.log(hs), np.log(errs), 1)[0]
+    assert order >= min_order, (method, errs, order)
+
+
+def test_empty_nodes_keep_or_neighbours(comm):
+    d = build_mesh(comm, "rectangle", [[0.0, 0.0], [1.0, 1.0]], [4, 4])
+    cl = Cloud(d, {"T": ()})
+    seed_cells(cl, 8, seed=2, region=lambda x: x[:, 0] < 0.5)
+    cl["T"] = 2.0
+    V = compat.function_space(d.mesh, 1)
+    T = dolfinx.fem.Function(V)
+    T.x.array[:] = -7.0
+    st = project(cl, "T", T, method="average", empty="keep")
+    assert st.empty > 0
+    vals = T.x.array
+    assert np.any(vals == -7.0) and np.any(np.isclose(vals, 2.0))
+    T.x.array[:] = -7.0
+    st2 = project(cl, "T", T, method="average", empty="neighbours")
+    assert st2.empty == st.empty
+    # nodes at x = 0.75 border filled nodes and get their value; x = 1 stays
+    xx = V.tabulate_dof_coordinates()
+    assert np.allclose(vals[np.isclose(xx[:, 0], 0.75)], 2.0)
+    assert np.allclose(vals[np.isclose(xx[:, 0], 1.0)], -7.0)
