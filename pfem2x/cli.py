@@ -1,4 +1,4 @@
-"""Command line: ``pfem2x run | check | scenes``.
+"""Command line: ``pfem2x run | check | scenes | study``.
 
 Exit codes: 0 ok, 2 bad input (one ``error:`` line on stderr naming the key
 or file), 3 the simulation diverged.
@@ -36,6 +36,9 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     c.add_argument("--variant")
     sub.add_parser("scenes", help="list built-in scenes")
+    from pfem2x.study import add_study_parser  # noqa: PLC0415
+
+    add_study_parser(sub)
     return p
 
 
@@ -44,6 +47,10 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     if args.cmd == "scenes":
         return _scenes()
+    if args.cmd == "study":  # a serial driver: no MPI, no DOLFINx
+        from pfem2x.study import study_main  # noqa: PLC0415
+
+        return study_main(args)
     from mpi4py import MPI  # noqa: PLC0415
 
     from pfem2x.scene import SceneError, load_scene  # noqa: PLC0415

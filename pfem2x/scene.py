@@ -274,7 +274,13 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "interface_width": Key(number(0.0, lo_open=True), 1.5, doc="smoothing half-width / H"),
         "reinit_every": Key(integer(0), 1, doc="level-set redistancing every N steps (0: never)"),
         "max_speed": Key(expr_text, 0.0, doc="|u| above this is divergence (0: no check)"),
-        "extra_pass": Key(boolean, False, doc="PFEM-2: second pass with theta = 1"),
+        "extra_pass": Key(boolean, False, doc="PFEM-2: second pass with theta = 1/2"),
+        "pic_fraction": Key(
+            number(0.0, 1.0),
+            0.0,
+            doc="PFEM-2: blend of particle velocities towards the mesh velocity per step "
+            "(0 = pure increments, FLIP)",
+        ),
         "rtol": Key(number(0.0, 1.0, lo_open=True), 1e-8, doc="linear solver tolerance"),
         "quadrature_degree": Key(integer(1, 20), 4, doc="quadrature degree of the flow forms"),
     },
@@ -447,9 +453,17 @@ def load_scene(
             raise SceneError(f"--variant {variant}: {path.name} has no such variant (has: {known})")
         for k, v in variants[variant].items():
             _set_dotted(raw, k.split("."), v, f"variants.{variant}.{k}")
+    step_keys: set[str] = set()
     for ov in overrides or []:
         parts, value = parse_override(ov)
         _set_dotted(raw, parts, value, f"--set {ov}")
+        if parts[0] == "time" and len(parts) == 2 and parts[1] in ("dt", "courant"):
+            step_keys.add(parts[1])
+    # `--set time.dt=...` on a scene that sets time.courant (or the reverse) replaces it;
+    # giving both on the command line is still refused by validation.
+    if len(step_keys) == 1 and isinstance(raw.get("time"), dict):
+        other = "courant" if "dt" in step_keys else "dt"
+        raw["time"].pop(other, None)
     return validate(raw, source=str(path), base_dir=path.parent)
 
 

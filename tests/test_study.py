@@ -1,0 +1,180 @@
+"""``pfem2x study``: tables and plots of a small product, resume, divergence, bad input.
+
+Serial only; every study runs ``gaussian-hill --variant small`` without field or
+PNG output so that each variant takes about a second.
+"""
+
+import csv
+import json
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+from pfem2x.study import StudyError, pareto_front, parse_vary, run_study, split_values
+
+QUICK = ["--variant", "small", "--set", "output.png=false", "--set", "output.fields=false"]
+VARY = ["--vary", "time.courant=2,5", "--vary", "method.theta=0.5,1"]
+
+
+def study(*args):
+    return subprocess.run(
+        [sys.executable, "-m", "pfem2x", "study", *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+def summaries(out):
+    return {p.parent.name: p.stat().st_mtime_ns for p in out.glob("variants/*/summary.json")}
+
+
+@pytest.fixture(scope="module")
+def two_by_two(tmp_path_factory):
+    out = tmp_path_factory.mktemp("study") / "gh"
+    res = study("gaussian-hill", *QUICK, *VARY, "--out", str(out), "--quiet")
+    assert res.returncode == 0, res.stderr
+    return out
+
+
+def test_outputs(two_by_two):
+    out = two_by_two
+    for name in ("study.csv", "study.json", "study.md", "error_vs_wall.png", "error_vs_dt.png"):
+        assert (out / name).is_file(), name
+        assert (out / name).stat().st_size > 0, name
+    with open(out / "study.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 4
+    for key in ("time.courant", "method.theta", "status", "exit_code", "wall_seconds"):
+        assert key in rows[0], key
+    for key in ("cpu_seconds", "steps", "peak_rss_mb", "frame", "pareto", "message"):
+        assert key in rows[0], key
+    assert {(r["time.courant"], r["method.theta"]) for r in rows} == {
+        ("2", "0.5"),
+        ("2", "1"),
+        ("5", "0.5"),
+        ("5", "1"),
+    }
+    assert all(r["status"] == "ok" and r["exit_code"] == "0" for r in rows)
+    assert all(float(r["peak_rss_mb"]) > 10 for r in rows)
+    assert all(r["frame"] == "eulerian" for r in rows)
+    assert any(r["pareto"] == "true" for r in rows)
+    data = json.loads((out / "study.json").read_text())
+    assert data["keys"] == ["time.courant", "method.theta"]
+    assert data["vary"] == {"time.courant": ["2", "5"], "method.theta": ["0.5", "1"]}
+    assert len(data["rows"]) == 4
+    metric = data["metric"]
+    assert metric is not None
+    assert all(isinstance(r[metric], float) for r in data["rows"])
+    assert all(r["steps"] > 0 and r["wall_seconds"] > 0 for r in data["rows"])
+    md = (out / "study.md").read_text()
+    assert "| time.courant | method.theta |" in md
+    assert md.count("| ok |") == 4
+
+
+def test_resume(two_by_two):
+    out = two_by_two
+    before = summaries(out)
+    assert len(before) == 4
+    res = study("gaussian-hill", *QUICK, *VARY, "--out", str(out))
+    assert res.returncode == 0, res.stderr
+    assert "4 done already, 0 to run" in res.stderr
+    assert summaries(out) == before
+    data = json.loads((out / "study.json").read_text())
+    assert all(r["resumed"] for r in data["rows"])
+    assert all(r["peak_rss_mb"] > 0 for r in data["rows"])  # kept from the first run
+    # A deleted variant and a half-written one (no summary.json) are rerun, nothing else.
+    gone, half = sorted(before)[:2]
+    shutil.rmtree(out / "variants" / gone)
+    (out / "variants" / half / "summary.json").unlink()
+    res = study("gaussian-hill", *QUICK, *VARY, "--out", str(out), "--quiet")
+    assert res.returncode == 0, res.stderr
+    after = summaries(out)
+    assert set(after) == set(before)
+    assert {k for k in before if after[k] != before[k]} == {gone, half}
+    data = json.loads((out / "study.json").read_text())
+    assert sum(not r["resumed"] for r in data["rows"]) == 2
+    assert all(r["status"] == "ok" for r in data["rows"])
+
+
+def test_diverged_variant_is_a_row(tmp_path):
+    # Explicit Euler (theta = 0) on T' = 1e6 T overflows; implicit Euler stays bounded.
+    out = tmp_path / "div"
+    res = study(
+        "gaussian-hill",
+        *QUICK,
+        "--set",
+        "effects.reaction=true",
+        "--set",
+        "transport.reaction=-1e6",
+        "--set",
+        "time.courant=0.2",
+        "--vary",
+        "method.theta=0,1",
+        "--out",
+        str(out),
+    )
+    assert res.returncode == 0, res.stderr
+    rows = {r["method.theta"]: r for r in json.loads((out / "study.json").read_text())["rows"]}
+    assert rows[0]["status"] == "diverged"
+    assert rows[0]["exit_code"] == 3
+    assert "diverged" in rows[0]["message"]
+    assert rows[1]["status"] == "ok"
+    assert "1 ok, 1 diverged" in res.stderr
+    assert "diverged" in (out / "study.md").read_text()
+
+
+@pytest.mark.parametrize(
+    "vary, needle",
+    [
+        ("time.courantt=1,2", "time.courantt"),
+        ("time.courant=", "time.courant"),
+        ("time.courant=1,,2", "time.courant"),
+        ("time.courant=1,-2", "time.courant"),
+        ("params.omegaa=1,2", "params.omegaa"),
+        ("method.frame=eulerian,nope", "method.frame"),
+        ("time.courant", "time.courant"),
+    ],
+)
+def test_bad_vary(tmp_path, vary, needle):
+    out = tmp_path / "never"
+    res = study("gaussian-hill", "--variant", "small", "--vary", vary, "--out", str(out))
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error:"), res.stderr
+    assert needle in lines[0]
+    assert not out.exists()
+
+
+def test_failed_child_is_a_row(tmp_path):
+    # A child that exits 1 without a summary (here: not even Python) is a "failed" row.
+    res = run_study(
+        "gaussian-hill",
+        ["time.courant=2"],
+        variant="small",
+        out=tmp_path / "fail",
+        quiet=True,
+        python=shutil.which("false") or "/bin/false",
+    )
+    assert res.exit_code == 0
+    assert [r["status"] for r in res.rows] == ["failed"]
+    assert res.rows[0]["exit_code"] == 1
+    assert (tmp_path / "fail" / "study.csv").is_file()
+
+
+def test_split_values():
+    assert split_values("0.5,2,5") == ["0.5", "2", "5"]
+    assert split_values("[50,200], [100,400]") == ["[50,200]", "[100,400]"]
+    assert split_values('"a,b",c') == ['"a,b"', "c"]
+    with pytest.raises(StudyError):
+        split_values("[1,2")
+    key, texts, values = parse_vary("mesh.cells=[8,8],[12,12]")
+    assert key == "mesh.cells" and texts == ["[8,8]", "[12,12]"]
+    assert values == [[8, 8], [12, 12]]
+
+
+def test_pareto_front():
+    pts = [(1.0, 5.0), (2.0, 3.0), (3.0, 4.0), (4.0, 1.0), (0.5, 9.0)]
+    assert pareto_front(pts) == [4, 0, 1, 3]
