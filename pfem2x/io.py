@@ -16,13 +16,12 @@ import sys
 import tempfile
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pfem2x import compat
-from pfem2x.compat import MPI
-from pfem2x.mesh import geometry_table
+if TYPE_CHECKING:  # DOLFINx is imported lazily: `pfem2x study` uses this module without it
+    from mpi4py import MPI
 
 __all__ = [
     "CSVWriter",
@@ -68,6 +67,8 @@ class FieldWriter:
     """An XDMF time series of P1 functions (``fields.xdmf`` + ``.h5``)."""
 
     def __init__(self, comm: MPI.Comm, path: str | os.PathLike, mesh: Any):
+        from pfem2x import compat  # noqa: PLC0415
+
         self.file = compat.xdmf_file(comm, str(path), "w")
         self.file.write_mesh(mesh)
 
@@ -196,6 +197,9 @@ def gather_p1(u: Any) -> tuple[np.ndarray, np.ndarray] | tuple[None, None]:
         ``(ncells, nv, gdim)`` and ``(ncells, nv)`` on rank 0, ``(None, None)`` elsewhere.
     """
     mesh = u.function_space.mesh
+    from pfem2x import compat  # noqa: PLC0415
+    from pfem2x.mesh import geometry_table  # noqa: PLC0415
+
     tab = geometry_table(mesh)
     dofs = compat.dofmap_array(u.function_space)[: tab.num_cells_owned]
     coords = tab.coords[: tab.num_cells_owned]

@@ -33,7 +33,6 @@ import re
 import signal
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from collections.abc import Sequence
@@ -42,6 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pfem2x.io import atomic_write_text
 from pfem2x.scene import Scene, SceneError, load_scene, parse_override
 
 __all__ = [
@@ -298,18 +298,6 @@ def plan_study(
 # --------------------------------------------------------------------------
 # Running
 # --------------------------------------------------------------------------
-def _atomic_write(path: Path, text: str) -> None:
-    """Atomic text write (like :func:`pfem2x.io.atomic_write_text`, which imports DOLFINx)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def _read_json(path: Path) -> dict[str, Any] | None:
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
@@ -517,9 +505,9 @@ def write_tables(out: Path, info: dict[str, Any], rows: list[dict[str, Any]]) ->
     for r in rows:
         f = _flat(r)
         w.writerow([_cell(f.get(c)) for c in [*cols, *metrics, "message"]])
-    _atomic_write(out / "study.csv", buf.getvalue())
+    atomic_write_text(out / "study.csv", buf.getvalue())
     data = dict(info, rows=[_flat(r) for r in rows])
-    _atomic_write(out / "study.json", json.dumps(data, indent=2) + "\n")
+    atomic_write_text(out / "study.json", json.dumps(data, indent=2) + "\n")
 
 
 def _fmt(v: Any) -> str:
@@ -588,7 +576,7 @@ def write_markdown(
     ]
     if plots:
         lines += [""] + [f"![{p}]({p})" for p in plots]
-    _atomic_write(out / "study.md", "\n".join(lines) + "\n")
+    atomic_write_text(out / "study.md", "\n".join(lines) + "\n")
 
 
 def _log_axes(ax: Any, xs: Sequence[float], ys: Sequence[float]) -> None:
@@ -777,7 +765,7 @@ def run_study(
             vdir = out_dir / "variants" / v.slug
             summary = _read_json(vdir / "summary.json")
             if vdir.is_dir():
-                _atomic_write(vdir / RUN_RECORD, json.dumps(rec, indent=2) + "\n")
+                atomic_write_text(vdir / RUN_RECORD, json.dumps(rec, indent=2) + "\n")
             row = _row(v, summary, rec, resumed=False)
             rows[v.slug] = row
             done += 1
