@@ -122,15 +122,18 @@ def gmsh_model_to_mesh(model: Any, comm: MPI.Comm, rank: int, gdim: int) -> tupl
     return gmshio.model_to_mesh(model, comm, rank, gdim=gdim)
 
 
-def function_space(mesh: Any, degree: int = 1, shape: tuple[int, ...] | None = None) -> Any:
-    """A continuous Lagrange space of ``degree`` (vector valued when ``shape`` is given)."""
+def function_space(
+    mesh: Any, degree: int = 1, shape: tuple[int, ...] | None = None, family: str = "Lagrange"
+) -> Any:
+    """A Lagrange space of ``degree`` (vector valued when ``shape`` is given);
+    ``family="DG"`` for the discontinuous one (e.g. cell-wise constants, degree 0)."""
     if NEW_API:
         return dolfinx.fem.functionspace(
-            mesh, ("Lagrange", degree, shape) if shape else ("Lagrange", degree)
+            mesh, (family, degree, shape) if shape else (family, degree)
         )
     if shape:
-        return dolfinx.fem.VectorFunctionSpace(mesh, ("Lagrange", degree), dim=shape[0])
-    return dolfinx.fem.FunctionSpace(mesh, ("Lagrange", degree))
+        return dolfinx.fem.VectorFunctionSpace(mesh, (family, degree), dim=shape[0])
+    return dolfinx.fem.FunctionSpace(mesh, (family, degree))
 
 
 def _adjacency_to_array(adj: Any, width: int | None = None) -> np.ndarray:

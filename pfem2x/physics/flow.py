@@ -385,13 +385,17 @@ class FlowBase(Solver):
         h = self.phase.x.array
         return ph[1][1] + (ph[0][1] - ph[1][1]) * h
 
+    def _cell_density(self) -> np.ndarray:
+        """Density of each owned cell (kinetic energy): mean of the nodal densities."""
+        return self._nodal_density()[self.dofmap[: self.n_owned]].mean(axis=1)
+
     def diagnostics(self, t: float) -> dict[str, float]:
         comm = self.comm
         u = self.u.x.array.reshape(-1, self.gdim)
         uc = u[self.dofmap[: self.n_owned]]  # (n, 3, gdim)
         div = np.einsum("ckj,ckj->c", uc, self._gradlam)
         speed_c = np.linalg.norm(uc, axis=2).max(axis=1) if len(uc) else np.zeros(0)
-        rho_c = self._nodal_density()[self.dofmap[: self.n_owned]].mean(axis=1)
+        rho_c = self._cell_density()
         ke = 0.5 * np.sum(rho_c * np.mean(np.sum(uc**2, axis=2), axis=1) * self.cell_vol)
         d = {
             "tau": t * self.problem.time_factor,
@@ -431,6 +435,82 @@ class FlowBase(Solver):
             out["tip_rising"] = [[h["tau"], h["tip_rising"]] for h in history]
         out["tau_factor"] = self.problem.time_factor
         return out
+
+    # -- pressure projection (shared by the frames) ---------------------------
+    def _setup_projection(self, rho: Any, f_body: Any, dxq: Any) -> None:
+        """Forms of the pressure increment, the correction and the hydrostatic start.
+
+        Needs ``self.dt_c`` (a Constant). Creates ``u_star`` (the predicted
+        velocity) and ``dp`` (the pressure increment):
+        ``int rho^-1 grad(dp).grad(r) = -dt^-1 int div(u*) r``, then
+        ``u = u* - dt M_rho^-1 int grad(dp).w`` with the rho-weighted lumped
+        mass ``M_rho`` (``b_mass``).
+
+        Parameters
+        ----------
+        rho:
+            UFL density (smoothed level set, a DG0 function, a constant).
+        f_body:
+            UFL body force per volume (:math:`\rho g`), for the hydrostatic start.
+        dxq:
+            The cell measure.
+        """
+        V, Q = self.V, self.Q
+        self.u_star = compat.dolfinx.fem.Function(V)
+        self.dp = compat.dolfinx.fem.Function(Q)
+        q, r = ufl.TrialFunction(Q), ufl.TestFunction(Q)
+        w = ufl.TestFunction(V)
+        self.a_p = compat.form((1.0 / rho) * ufl.dot(ufl.grad(q), ufl.grad(r)) * dxq)
+        self.L_p = compat.form(-(1.0 / self.dt_c) * ufl.div(self.u_star) * r * dxq)
+        self.L_p0 = compat.form((1.0 / rho) * ufl.dot(f_body, ufl.grad(r)) * dxq)
+        self.A_p = None
+        self.b_p = compat.create_vector(self.L_p)
+        self.p_solver: fem.LinearSolver | None = None
+        self.nullspace = None
+        self.L_c = compat.form(ufl.dot(ufl.grad(self.dp), w) * dxq)
+        self.L_mass = compat.form(rho * ufl.dot(w, ufl.as_vector([1.0] * self.gdim)) * dxq)
+        self.b_c = compat.create_vector(self.L_c)
+        self.b_mass = compat.create_vector(self.L_mass)
+        self.iterations: dict[str, int] = {}
+
+    def _pressure_operator(self) -> None:
+        self.A_p = fem.assemble_matrix(self.a_p, self._bcs_p, self.A_p)
+        if not self._bcs_p:
+            self.nullspace = compat.constant_nullspace(self.A_p)
+        if self.p_solver is None:
+            self.p_solver = fem.LinearSolver(
+                self.A_p, "cg", self.scene["method"]["preconditioner"], rtol=self.problem.rtol
+            )
+        else:
+            self.p_solver.set_operator(self.A_p)
+
+    def _solve_pressure(self, L: Any, x: Any) -> None:
+        fem.assemble_vector(L, self.b_p, self.a_p, self._bcs_p)
+        if self.nullspace is not None:
+            self.nullspace.remove(self.b_p)
+        t0 = time.perf_counter()
+        self.iterations["pressure"] = self.p_solver.solve(self.b_p, compat.petsc_vec(x))
+        x.x.scatter_forward()
+        self.timings["solve"] += time.perf_counter() - t0
+
+    def _initial_pressure(self) -> None:
+        """Hydrostatic start: div(rho^-1 (grad p - rho g)) = 0."""
+        self._pressure_operator()
+        self._solve_pressure(self.L_p0, self.p)
+
+    def _correct(self, dt: float, mass_ready: bool = False) -> None:
+        """``u = u* - dt M_rho^-1 grad(dp)``, Dirichlet values, ``p += dp``.
+
+        ``mass_ready``: ``b_mass`` already holds the lumped mass of the current density.
+        """
+        fem.assemble_vector(self.L_c, self.b_c)
+        if not mass_ready:
+            fem.assemble_vector(self.L_mass, self.b_mass)
+        n = len(self.b_c.array_r)
+        self.u.x.array[:n] = self.u_star.x.array[:n] - dt * self.b_c.array_r / self.b_mass.array_r
+        compat.set_bc(compat.petsc_vec(self.u), self._bcs_u)
+        self.u.x.scatter_forward()
+        self.p.x.array[:] += self.dp.x.array
 
     # -- API ------------------------------------------------------------------
     def max_velocity(self, t: float) -> float:
@@ -475,7 +555,6 @@ class EulerianFlow(FlowBase):
         super().__init__(scene, domain)
         pr = self.problem
         mesh = domain.mesh
-        gdim = self.gdim
         V, Q = self.V, self.Q
         sc = PETSc.ScalarType
         self.dt_c = compat.dolfinx.fem.Constant(mesh, sc(1.0))
@@ -486,8 +565,6 @@ class EulerianFlow(FlowBase):
         dxq = ufl.dx(domain=mesh, metadata={"quadrature_degree": pr.quadrature_degree})
         supg = bool(scene["method"]["supg"])
         self.u_n = compat.dolfinx.fem.Function(V)
-        self.u_star = compat.dolfinx.fem.Function(V)
-        self.dp = compat.dolfinx.fem.Function(Q)
         un = self.u_n
         g = compat.dolfinx.fem.Constant(mesh, np.asarray(pr.gravity, dtype=sc))
         (_, r1, m1, _) = pr.phases[0]
@@ -505,6 +582,7 @@ class EulerianFlow(FlowBase):
         # flat interface at rest on P1/P1, so it is not used.)
         self._f_grav = rho * g
         fg = self._f_grav
+        self._setup_projection(rho, fg, dxq)
         unorm = ufl.sqrt(ufl.dot(un, un) + 1e-30)
 
         # level set: Crank-Nicolson + SUPG with u^n
@@ -543,23 +621,6 @@ class EulerianFlow(FlowBase):
         self.b_m = compat.create_vector(self.L_m)
         self.m_solver: fem.LinearSolver | None = None
 
-        # pressure increment
-        q, r = ufl.TrialFunction(Q), ufl.TestFunction(Q)
-        self.a_p = compat.form((1.0 / rho) * ufl.dot(ufl.grad(q), ufl.grad(r)) * dxq)
-        self.L_p = compat.form(-(1.0 / dt) * ufl.div(self.u_star) * r * dxq)
-        self.L_p0 = compat.form((1.0 / rho) * ufl.dot(fg, ufl.grad(r)) * dxq)
-        self.A_p = None
-        self.b_p = compat.create_vector(self.L_p)
-        self.p_solver: fem.LinearSolver | None = None
-        self.nullspace = None
-
-        # correction (rho-weighted lumped mass)
-        self.L_c = compat.form(ufl.dot(ufl.grad(self.dp), w) * dxq)
-        self.L_mass = compat.form(rho * ufl.dot(w, ufl.as_vector([1.0] * gdim)) * dxq)
-        self.b_c = compat.create_vector(self.L_c)
-        self.b_mass = compat.create_vector(self.L_mass)
-
-        self.iterations: dict[str, int] = {}
         self._update_inflow(0.0)
         compat.set_bc(compat.petsc_vec(self.u), self._bcs_u)
         self.u.x.scatter_forward()
@@ -567,31 +628,6 @@ class EulerianFlow(FlowBase):
             self._initial_pressure()
 
     # -- pieces ---------------------------------------------------------------
-    def _pressure_operator(self) -> None:
-        self.A_p = fem.assemble_matrix(self.a_p, self._bcs_p, self.A_p)
-        if not self._bcs_p:
-            self.nullspace = compat.constant_nullspace(self.A_p)
-        if self.p_solver is None:
-            self.p_solver = fem.LinearSolver(
-                self.A_p, "cg", self.scene["method"]["preconditioner"], rtol=self.problem.rtol
-            )
-        else:
-            self.p_solver.set_operator(self.A_p)
-
-    def _solve_pressure(self, L: Any, x: Any) -> None:
-        fem.assemble_vector(L, self.b_p, self.a_p, self._bcs_p)
-        if self.nullspace is not None:
-            self.nullspace.remove(self.b_p)
-        t0 = time.perf_counter()
-        self.iterations["pressure"] = self.p_solver.solve(self.b_p, compat.petsc_vec(x))
-        x.x.scatter_forward()
-        self.timings["solve"] += time.perf_counter() - t0
-
-    def _initial_pressure(self) -> None:
-        """Hydrostatic start: div(rho^-1 (grad p - rho g)) = 0."""
-        self._pressure_operator()
-        self._solve_pressure(self.L_p0, self.p)
-
     def _advect_levelset(self) -> None:
         t0 = time.perf_counter()
         self.phi_n.x.array[:] = self.phi.x.array
@@ -638,13 +674,7 @@ class EulerianFlow(FlowBase):
         self._solve_pressure(self.L_p, self.dp)
         t4 = time.perf_counter()
         # correction
-        fem.assemble_vector(self.L_c, self.b_c)
-        fem.assemble_vector(self.L_mass, self.b_mass)
-        n = len(self.b_c.array_r)
-        self.u.x.array[:n] = self.u_star.x.array[:n] - dt * self.b_c.array_r / self.b_mass.array_r
-        compat.set_bc(compat.petsc_vec(self.u), self._bcs_u)
-        self.u.x.scatter_forward()
-        self.p.x.array[:] += self.dp.x.array
+        self._correct(dt)
         t5 = time.perf_counter()
         self.timings["assembly"] += (t1 - t0) + (t3 - t2) + (t5 - t4)
         self.timings["solve"] += t2 - t1
@@ -657,4 +687,8 @@ def make_flow_solver(scene: Scene, domain: Domain) -> Solver:
     frame = scene.frame
     if frame == "eulerian":
         return EulerianFlow(scene, domain)
+    if frame == "lagrangian":
+        from pfem2x.physics.flow_pfem2 import LagrangianFlow  # noqa: PLC0415
+
+        return LagrangianFlow(scene, domain)
     raise SceneError(f"method.frame: the {frame!r} flow frame is not available yet")

@@ -1,0 +1,355 @@
+r"""PFEM-2 Navier–Stokes, one or two phases: ``method.frame = "lagrangian"`` (issue 5).
+
+Particles carry the velocity ``u`` and, with two phases, a sharp ``phase``
+(1 in the phase that has a ``region``, 0 in the other). The fixed P1 mesh only
+sees what the particles project onto it; convection is done by the particle
+motion alone (no convective term is ever assembled). One step
+(paper section 3, steps 1–5, first order in the linearisation, :math:`\theta = 0`):
+
+1. **Move** every particle along the streamline of :math:`u^n` (X-IVAS,
+   eq. 2.10 with :math:`\theta = 0`, RK2 sub-steps of at most
+   ``method.substep_courant`` cells) and add the explicit part of the
+   momentum source, :math:`a^n = g - \rho^{-1}\nabla p^n`, integrated along
+   the path by the trapezoid rule of its two ends:
+   :math:`\hat u_p = u_p + \tfrac{\Delta t}{2}(a^n(x_p^n) + a^n(x_p^{n+1}))`.
+   :math:`a^n` is the P1 field :math:`M_\rho^{-1}\int(\rho g - \nabla p^n)\cdot w`
+   (the :math:`\rho`-weighted lumped mass of the correction step), so a fluid
+   in hydrostatic balance gets no kick and the particles get no cell-wise jumps.
+2. **Project** :math:`\hat u_p` to the P1 nodes (``method.projection``) →
+   :math:`\hat u`. The density and viscosity are cell-wise constants (DG0)
+   from the fraction of each cell's particles with ``phase = 1``: sharp
+   within one cell, no smoothing band. The phase is also projected to P1
+   (``"average"``, bounded) for output, the interface tips and ``phi =
+   phase - 1/2``.
+3. **Implicit mesh step** (incremental pressure correction):
+   viscous predictor :math:`M_\rho(u^* - \hat u)/\Delta t + K_\mu u^* = 0`
+   (lumped :math:`\rho`-mass, :math:`K_\mu` the :math:`2\mu\,\varepsilon:\varepsilon`
+   stiffness with the wall conditions, assembled once when :math:`\mu` is
+   the same in both phases, else every step; skipped without viscosity),
+   pressure increment :math:`\nabla\cdot(\rho^{-1}\nabla\delta p) =
+   \nabla\cdot u^*/\Delta t` (operator re-assembled every step: :math:`\rho`
+   moves with the particles), correction :math:`u^{n+1} = u^* - \Delta t
+   M_\rho^{-1}\nabla\delta p`, :math:`p^{n+1} = p^n + \delta p` — the
+   machinery of :class:`pfem2x.physics.flow.FlowBase`, shared with the
+   Eulerian frame.
+4. **Increment** back to the particles: :math:`u_p \mathrel{+}= (u^{n+1} -
+   \hat u)(x_p)`, never overwritten; with ``flow.pic_fraction`` = α > 0 the
+   result is blended, :math:`u_p \leftarrow (1-\alpha)u_p + \alpha u^{n+1}(x_p)`
+   (α = 0: pure FLIP, the paper's scheme; small α damps sub-cell noise at
+   the price of numerical viscosity).
+5. **Population**: cells outside ``method.min_particles_per_cell`` /
+   ``max_particles_per_cell`` get / lose particles; new ones take ``u`` and
+   ``phase`` from a fit of their neighbours (the phase is then rounded back
+   to 0/1, so it stays sharp).
+
+``flow.extra_pass = true`` repeats steps 1–4 once from the start-of-step
+particles with :math:`\theta = 1/2` in eq. 2.10 (positions with the mean
+of :math:`u^n` and the first pass's :math:`u^{n+1}`) and the source
+:math:`a` averaged the same way — step 6 of the paper.
+
+Operators per step (``fem.COUNTERS``): 1 matrix assembly (pressure; +1 for
+the viscous matrix when the phases' viscosities differ), 4 vector
+assemblies (lumped mass, pressure right-hand side, correction, source
+:math:`a`), 2 solves (viscous predictor, pressure; 1 without viscosity);
+twice that with ``flow.extra_pass``.
+
+Limitations: box sides ``slip`` / ``noslip`` only (inflow / outflow need
+particle seeding and deletion at the boundary, not wired yet); 2D.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+import ufl
+
+from pfem2x import compat, fem
+from pfem2x import particles as P
+from pfem2x.compat import MPI, PETSc
+from pfem2x.mesh import Domain
+from pfem2x.physics.base import Diverged
+from pfem2x.physics.flow import FlowBase
+from pfem2x.scene import Scene, SceneError
+
+__all__ = ["LagrangianFlow"]
+
+
+class LagrangianFlow(FlowBase):
+    """PFEM-2 fractional-step NS with particle velocity and sharp particle phase.
+
+    See the module docstring for the step. Diagnostics are those of
+    :class:`FlowBase` with these choices: phase volumes from the cell
+    fractions of phase-1 particles (what the density uses); ``tip_falling`` /
+    ``tip_rising`` from the ``phase = 1/2`` iso-line of the P1-projected
+    phase (like interFoam's ``alpha = 0.5``); ``tip_*_particles`` the extreme
+    particle of each phase; ``particles`` the global count.
+    """
+
+    name = "flow-lagrangian"
+
+    def __init__(self, scene: Scene, domain: Domain):
+        fl = scene["flow"]
+        for side in ("left", "right", "bottom", "top"):
+            kind = fl[side] or fl["walls"]
+            if kind not in ("slip", "noslip"):
+                raise SceneError(
+                    f"flow.{side if fl[side] else 'walls'}: {kind!r} sides are not available "
+                    "in the lagrangian flow frame yet (slip, noslip)"
+                )
+        super().__init__(scene, domain)
+        pr = self.problem
+        meth = scene["method"]
+        mesh = domain.mesh
+        sc = PETSc.ScalarType
+        self.pic_fraction = float(fl["pic_fraction"])
+        self.extra_pass = bool(fl["extra_pass"])
+        self.dt_c = compat.dolfinx.fem.Constant(mesh, sc(1.0))
+
+        # cell-wise density / viscosity from the particles
+        self.W0 = compat.function_space(mesh, 0, family="DG")
+        self._cell_dofs = compat.dofmap_array(self.W0)[: self.n_owned, 0]
+        self.rho = compat.dolfinx.fem.Function(self.W0, name="rho")
+        self.mu = compat.dolfinx.fem.Function(self.W0, name="mu")
+        self.frac = np.zeros(self.n_owned)  # phase-1 fraction of each owned cell
+        self.u_hat = compat.dolfinx.fem.Function(self.V)
+        self.force = compat.dolfinx.fem.Function(self.V)  # a = g - grad(p)/rho (P1)
+        self.du = compat.dolfinx.fem.Function(self.V)
+        self._u_old = compat.dolfinx.fem.Function(self.V)  # u^n for the extra pass
+
+        # particles
+        fields: dict[str, Any] = {"u": (self.gdim,)}
+        if pr.two_phase:
+            fields["phase"] = ()
+        self.cloud_ = P.Cloud(domain, fields)
+        P.seed_cells(self.cloud_, meth["particles_per_cell"], seed=meth["seed"])
+        P.interpolate(self.cloud_, "u", self.u)
+        if pr.two_phase:
+            region = pr.phases[0][3]
+            x = self.cloud_.x
+            x3 = np.zeros((len(x), 3))
+            x3[:, : self.gdim] = x
+            self.cloud_.field("phase")[:] = np.asarray(region(x3, 0.0), dtype=bool)
+        self.last_population = P.PopulationStats()
+        self.step_count = 0
+        self._update_phase_fields()
+
+        # forms
+        dx = ufl.dx(domain=mesh)
+        g = compat.dolfinx.fem.Constant(mesh, np.asarray(pr.gravity, dtype=sc))
+        self._setup_projection(self.rho, self.rho * g, dx)
+        v, w = ufl.TrialFunction(self.V), ufl.TestFunction(self.V)
+        mus = {m for (_, _, m, _) in pr.phases}
+        self.viscous = max(mus) > 0.0
+        self.mu_varies = len(mus) > 1
+        self.a_K = compat.form(
+            2.0 * self.mu * ufl.inner(ufl.sym(ufl.grad(v)), ufl.sym(ufl.grad(w))) * dx
+        )
+        self.K: Any = None
+        self.A_m: Any = None
+        self.m_solver: fem.LinearSolver | None = None
+        self.L_f = compat.form(ufl.dot(self.rho * g - ufl.grad(self.p), w) * dx)
+        self.b_f = compat.create_vector(self.L_f)
+        self.b_m = compat.create_vector(self.L_mass)
+        self._diag = compat.create_vector(self.L_mass)
+
+        compat.set_bc(compat.petsc_vec(self.u), self._bcs_u)
+        self.u.x.scatter_forward()
+        if np.any(pr.gravity):
+            self._initial_pressure()
+        fem.assemble_vector(self.L_mass, self.b_mass)
+        self._update_force()
+        self.volume0 = self._phase_volumes()
+
+    # -- phase / density --------------------------------------------------------
+    def _init_levelset(self) -> None:
+        """The phase lives on the particles (seeded in ``__init__``), not in a level set."""
+
+    def _update_phase_fields(self) -> None:
+        """Cell fractions → DG0 density and viscosity; P1 phase and ``phi`` (collective)."""
+        c = self.cloud_
+        pr = self.problem
+        (_, r1, m1, _) = pr.phases[0]
+        if not pr.two_phase:
+            self.frac[:] = 1.0
+        else:
+            P.project(c, "phase", self.phase, method="average", empty="neighbours")
+            self.phi.x.array[:] = self.phase.x.array - 0.5
+            cells = c.cells
+            n = np.bincount(cells, minlength=self.n_owned)[: self.n_owned]
+            heavy = np.bincount(cells, weights=c.field("phase"), minlength=self.n_owned)
+            nodal = self.phase.x.array[self.dofmap[: self.n_owned]].mean(axis=1)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                self.frac[:] = np.where(n > 0, heavy[: self.n_owned] / np.maximum(n, 1), nodal)
+        (_, r2, m2, _) = pr.phases[1] if pr.two_phase else pr.phases[0]
+        f = self.frac
+        self.rho.x.array[self._cell_dofs] = r2 + (r1 - r2) * f
+        self.mu.x.array[self._cell_dofs] = m2 + (m1 - m2) * f
+        self.rho.x.scatter_forward()
+        self.mu.x.scatter_forward()
+
+    def _cell_density(self) -> np.ndarray:
+        return self.rho.x.array[self._cell_dofs]
+
+    def _phase_volumes(self) -> dict[str, float]:
+        if not hasattr(self, "cloud_"):
+            return {}
+        names = [p[0] for p in self.problem.phases]
+        total = float(self.comm.allreduce(self.cell_vol.sum(), op=MPI.SUM))
+        if not self.problem.two_phase:
+            return {names[0]: total}
+        v1 = float(self.comm.allreduce(float(np.dot(self.frac, self.cell_vol)), op=MPI.SUM))
+        return {names[0]: v1, names[1]: total - v1}
+
+    def _update_force(self) -> None:
+        """``a = M_rho^-1 int (rho g - grad p).w`` at the nodes (needs ``b_mass``)."""
+        fem.assemble_vector(self.L_f, self.b_f)
+        n = len(self.b_f.array_r)
+        self.force.x.array[:n] = self.b_f.array_r / self.b_mass.array_r
+        self.force.x.scatter_forward()
+
+    # -- the step -----------------------------------------------------------------
+    def _move(self, dt: float, theta: float) -> None:
+        """Step 1: X-IVAS move along ``u^n`` (+ ``theta``: ``u^{n+1}``) with the source."""
+        c = self.cloud_
+        meth = self.scene["method"]
+        up = c.field("u")
+        up += 0.5 * dt * P.evaluate(c, self.force)
+        if theta > 0.0:
+            P.advect(
+                c, self._u_old, dt, velocity_next=self.u, theta=theta,
+                courant=meth["substep_courant"],
+            )  # fmt: skip
+        else:
+            P.advect(c, self.u, dt, courant=meth["substep_courant"])
+        up = c.field("u")  # storage may have been reordered / migrated
+        up += 0.5 * dt * P.evaluate(c, self.force)
+
+    def _mesh_step(self, dt: float) -> None:
+        """Step 3: viscous predictor, pressure increment, correction; new source ``a``."""
+        t0 = time.perf_counter()
+        fem.assemble_vector(self.L_mass, self.b_mass)
+        n = len(self.b_mass.array_r)
+        if self.viscous:
+            if self.K is None or self.mu_varies:
+                self.K = fem.assemble_matrix(self.a_K, self._bcs_u, self.K)
+            if self.A_m is None:
+                self.A_m = self.K.duplicate(copy=True)
+            else:
+                self.K.copy(self.A_m, PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+            self._diag.array[:] = self.b_mass.array_r / dt
+            self.A_m.setDiagonal(self._diag, addv=PETSc.InsertMode.ADD_VALUES)
+            self.b_m.array[:] = self._diag.array_r * self.u_hat.x.array[:n]
+            compat.set_bc(self.b_m, self._bcs_u)
+            if self.m_solver is None:
+                self.m_solver = fem.LinearSolver(self.A_m, "cg", "jacobi", rtol=self.problem.rtol)
+            else:
+                self.m_solver.set_operator(self.A_m)
+            t1 = time.perf_counter()
+            self.iterations["momentum"] = self.m_solver.solve(
+                self.b_m, compat.petsc_vec(self.u_star)
+            )
+            self.u_star.x.scatter_forward()
+            t2 = time.perf_counter()
+        else:
+            self.u_star.x.array[:] = self.u_hat.x.array
+            compat.set_bc(compat.petsc_vec(self.u_star), self._bcs_u)
+            self.u_star.x.scatter_forward()
+            t1 = t2 = time.perf_counter()
+        self._pressure_operator()
+        t3 = time.perf_counter()
+        self._solve_pressure(self.L_p, self.dp)
+        t4 = time.perf_counter()
+        self._correct(dt, mass_ready=True)
+        self._update_force()
+        t5 = time.perf_counter()
+        self.timings["assembly"] += (t1 - t0) + (t3 - t2) + (t5 - t4)
+        self.timings["solve"] += t2 - t1
+
+    def _pass(self, dt: float, theta: float) -> None:
+        """Steps 1–4 of one pass."""
+        c = self.cloud_
+        t0 = time.perf_counter()
+        self._move(dt, theta)
+        P.project(c, "u", self.u_hat, method=self.scene["method"]["projection"], empty="neighbours")
+        self._update_phase_fields()
+        self.timings["particles"] += time.perf_counter() - t0
+        self._mesh_step(dt)
+        t1 = time.perf_counter()
+        self.du.x.array[:] = self.u.x.array - self.u_hat.x.array
+        P.add_increment(c, "u", self.du)
+        a = self.pic_fraction
+        if a > 0.0:
+            up = c.field("u")
+            up *= 1.0 - a
+            up += a * P.evaluate(c, self.u)
+        self.timings["particles"] += time.perf_counter() - t1
+
+    def step(self, t: float, dt: float) -> None:
+        self.dt_c.value = dt
+        self.dt_last = dt
+        c = self.cloud_
+        meth = self.scene["method"]
+        if self.extra_pass:
+            t0 = time.perf_counter()
+            saved = c.extract(np.arange(c.n))
+            self._u_old.x.array[:] = self.u.x.array
+            p_old = self.p.x.array.copy()
+            force_old = self.force.x.array.copy()
+            self.timings["particles"] += time.perf_counter() - t0
+            self._pass(dt, 0.0)
+            # second pass from the start-of-step state, theta = 1/2 in eq. 2.10
+            t0 = time.perf_counter()
+            c.remove(np.ones(c.n, dtype=bool))
+            names = c.field_names
+            c.append(saved["__x"], saved["__c"], {k: saved[k] for k in names})
+            self.force.x.array[:] = 0.5 * (self.force.x.array + force_old)
+            self.p.x.array[:] = p_old
+            self.timings["particles"] += time.perf_counter() - t0
+            self._pass(dt, 0.5)
+        else:
+            self._pass(dt, 0.0)
+        # 5. population control; the phase stays sharp
+        t0 = time.perf_counter()
+        nmin, nmax = meth["min_particles_per_cell"], meth["max_particles_per_cell"]
+        if nmin > 0 or nmax > 0:
+            fb = {"u": self.u}
+            if self.problem.two_phase:
+                fb["phase"] = self.phase
+            self.last_population = P.rebalance(
+                c, nmin, nmax, seed=meth["seed"] + 7919 * (self.step_count + 1), fallback=fb
+            )
+            if self.problem.two_phase:
+                ph = c.field("phase")
+                ph[:] = ph > 0.5
+        self.timings["particles"] += time.perf_counter() - t0
+        self.step_count += 1
+        self.steps_done += 1
+        bad = 0 if np.all(np.isfinite(c.field("u"))) else 1
+        if self.comm.allreduce(bad, op=MPI.MAX):
+            raise Diverged("particle velocity is not finite")
+        self._check()
+
+    # -- output / diagnostics -----------------------------------------------------
+    def cloud(self) -> Any:
+        return self.cloud_
+
+    def snapshot_field(self) -> tuple[str, Any]:
+        """The P1-projected phase (two phases) or the speed field's first component."""
+        if self.phase is not None:
+            return "phase", self.phase
+        return "u", self.u
+
+    def diagnostics(self, t: float) -> dict[str, float]:
+        d = super().diagnostics(t)
+        c = self.cloud_
+        d["particles"] = float(c.global_count())
+        if self.problem.two_phase:
+            ph = c.field("phase") > 0.5
+            y = c.x[:, 1]
+            lo = y[ph].min() if ph.any() else np.inf
+            hi = y[~ph].max() if (~ph).any() else -np.inf
+            d["tip_falling_particles"] = float(self.comm.allreduce(lo, op=MPI.MIN))
+            d["tip_rising_particles"] = float(self.comm.allreduce(hi, op=MPI.MAX))
+        return d
