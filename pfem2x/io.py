@@ -312,8 +312,15 @@ def _png_pyvista(
     grid.point_data["value"] = vals.ravel()
     span = pts.max(axis=0) - pts.min(axis=0)
     aspect = span[1] / max(span[0], 1e-30) if gdim == 2 else 1.0
-    w = 800
-    h = int(np.clip(w * aspect, 300, 1600)) if gdim == 2 else 800
+    if gdim == 2:  # the frame follows the domain's shape: longest side 1000 px
+        w, h = (
+            (1000, int(max(1000 * aspect, 250)))
+            if aspect <= 1
+            else (int(max(1000 / aspect, 250)), 1000)
+        )
+        h += 40  # title line
+    else:
+        w = h = 800
     pl = pv.Plotter(off_screen=True, window_size=(w, h))
     # No VTK scalar bar: with DOLFINx loaded, VTK 9.x wheels abort in its label
     # formatting (libstdc++ regex clash); the range goes into the title instead.
@@ -326,6 +333,10 @@ def _png_pyvista(
     pl.add_text(f"{title}   [{lo:.3g}, {hi:.3g}]", font_size=10)
     if gdim == 2:
         pl.view_xy()
+        try:  # fill the frame (pyvista >= 0.38)
+            pl.camera.tight(padding=0.03, view="xy")
+        except (AttributeError, TypeError):
+            pass
     pl.screenshot(str(path))
     pl.close()
 
