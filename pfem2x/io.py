@@ -28,6 +28,9 @@ __all__ = [
     "FieldWriter",
     "ParticleWriter",
     "atomic_write_text",
+    "chain_segments",
+    "read_interface",
+    "write_interface",
     "gather_p1",
     "png_snapshot",
     "write_json",
@@ -186,6 +189,68 @@ class ParticleWriter:
             + body
             + "</Collection>\n</VTKFile>\n",
         )
+
+
+def chain_segments(segs: np.ndarray, tol: float = 1e-9) -> list[np.ndarray]:
+    """Join segments ``(m, 2, 2)`` that share end points into polylines (output only).
+
+    Returns
+    -------
+    list of ``(k, 2)`` arrays, open or closed (first point repeated) polylines.
+    """
+    if len(segs) == 0:
+        return []
+    pts = segs.reshape(-1, 2)
+    scale = max(float(np.ptp(pts, axis=0).max()), 1.0)
+    keys = np.round(pts / (tol * scale)).astype(np.int64)
+    _, ids = np.unique(keys, axis=0, return_inverse=True)
+    ids = ids.reshape(-1, 2)
+    nbrs: dict[int, list[int]] = {}
+    for k, (a, b) in enumerate(ids.tolist()):
+        nbrs.setdefault(a, []).append(k)
+        nbrs.setdefault(b, []).append(k)
+    used = np.zeros(len(ids), dtype=bool)
+    point = {int(i): pts[2 * k + j] for k, row in enumerate(ids) for j, i in enumerate(row)}
+    lines = []
+    # start at open ends first so open curves come out whole
+    starts = [v for v, ks in nbrs.items() if len(ks) == 1] + list(nbrs)
+    for v0 in starts:
+        if all(used[k] for k in nbrs[v0]):
+            continue
+        line, v = [v0], v0
+        while True:
+            nxt = [k for k in nbrs[v] if not used[k]]
+            if not nxt:
+                break
+            k = nxt[0]
+            used[k] = True
+            a, b = ids[k]
+            v = int(b if a == v else a)
+            line.append(v)
+        lines.append(np.array([point[i] for i in line]))
+    return lines
+
+
+def write_interface(comm: MPI.Comm, path: str | os.PathLike, segs: np.ndarray) -> None:
+    """Gather interface segments to rank 0 and write them as polylines (CSV: line, x, y)."""
+    parts = comm.gather(np.asarray(segs).reshape(-1, 2, 2), root=0)
+    if comm.rank != 0:
+        return
+    lines = chain_segments(np.concatenate(parts) if parts else np.zeros((0, 2, 2)))
+    rows = ["line,x,y"]
+    for i, ln in enumerate(lines):
+        rows.extend(f"{i},{x:.9g},{y:.9g}" for x, y in ln)
+    atomic_write_text(path, "\n".join(rows) + "\n")
+
+
+def read_interface(path: str | os.PathLike) -> list[np.ndarray]:
+    """Read a polyline CSV written by :func:`write_interface`."""
+    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    if data.size == 0:
+        return []
+    line = data[:, 0].astype(int)
+    cut = np.flatnonzero(np.diff(line)) + 1
+    return [d[:, 1:] for d in np.split(data, cut)]
 
 
 def gather_p1(u: Any) -> tuple[np.ndarray, np.ndarray] | tuple[None, None]:

@@ -201,6 +201,11 @@ class Simulation:
                 fw.write(self.solver.fields(), t)
             if pw is not None:
                 pw.write(*particle_arrays(self.solver.cloud()), t, step)
+            segs = self.solver.interfaces()
+            if segs is not None:
+                if self.rank0:
+                    (out / "interface").mkdir(exist_ok=True)
+                pio.write_interface(comm, out / "interface" / f"interface_t{t:010.5f}.csv", segs)
 
         def snapshots(t: float, final: bool = False) -> None:
             nonlocal png_i

@@ -58,6 +58,10 @@ class Solver:
         """How time ``t`` is shown to users (e.g. in another time unit)."""
         return f"t = {t:.4g}"
 
+    def interfaces(self) -> np.ndarray | None:
+        """This rank's interface segments ``(m, 2, 2)``, or ``None`` without an interface."""
+        return None
+
     def cloud(self) -> Any | None:
         """The particle cloud, if the solver has one."""
         return None

@@ -364,6 +364,11 @@ class FlowBase(Solver):
         v1 = float(self.comm.allreduce(np.dot(positive_fraction(vals), self.cell_vol), op=MPI.SUM))
         return {names[0]: v1, names[1]: total - v1}
 
+    def interfaces(self) -> np.ndarray:
+        """This rank's segments ``(m, 2, 2)`` of the interface (zero iso-line of ``phi``)."""
+        vals = self.phi.x.array[self.dofmap[: self.n_owned]]
+        return cut_segments(vals, self.cell_xy[: self.n_owned])
+
     def tips(self) -> tuple[float, float]:
         """Lowest and highest y of the zero iso-line of the level set (global)."""
         vals = self.phi.x.array[self.dofmap[: self.n_owned]]

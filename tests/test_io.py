@@ -1,0 +1,60 @@
+"""Output helpers: particle VTK files, interface polylines."""
+
+import numpy as np
+import pytest
+
+from pfem2x.compat import MPI
+from pfem2x.io import chain_segments, read_interface, write_interface, write_vtp
+from pfem2x.runner import Simulation
+from pfem2x.scene import load_scene
+
+
+def test_chain_segments_open_and_closed():
+    rng = np.random.default_rng(0)
+    # an open zig-zag of 6 points and a closed square, segments shuffled and flipped
+    line = np.array([[0, 0], [1, 0.5], [2, 0], [3, 0.5], [4, 0], [5, 0.5]], float)
+    sq = np.array([[10, 10], [11, 10], [11, 11], [10, 11], [10, 10]], float)
+    segs = [np.array([a, b]) for a, b in zip(line[:-1], line[1:], strict=True)]
+    segs += [np.array([a, b]) for a, b in zip(sq[:-1], sq[1:], strict=True)]
+    segs = [s[::-1] if rng.random() < 0.5 else s for s in segs]
+    order = rng.permutation(len(segs))
+    lines = chain_segments(np.array(segs)[order])
+    assert sorted(len(ln) for ln in lines) == [5, 6]
+    open_line = next(ln for ln in lines if len(ln) == 6)
+    assert {tuple(open_line[0]), tuple(open_line[-1])} == {(0.0, 0.0), (5.0, 0.5)}
+    closed = next(ln for ln in lines if len(ln) == 5)
+    assert np.allclose(closed[0], closed[-1])
+
+
+def test_vtp_is_valid_xml(tmp_path):
+    import xml.etree.ElementTree as ET
+
+    p = tmp_path / "p.vtp"
+    write_vtp(
+        p, np.random.default_rng(1).random((10, 2)), {"T": np.arange(10.0), "u": np.ones((10, 2))}
+    )
+    root = ET.parse(p).getroot()
+    piece = root.find("PolyData/Piece")
+    assert piece.get("NumberOfPoints") == "10"
+    names = [a.get("Name") for a in root.iter("DataArray")]
+    assert "T" in names and "u" in names
+
+
+@pytest.mark.mpi
+def test_interface_polylines_of_a_run(shared_tmp):
+    sc = load_scene("rayleigh-taylor", ["output.png=false", "output.particles=false"], "small")
+    res = Simulation(sc, shared_tmp / "rt", quiet=True).run()
+    assert res.status == "ok"
+    files = sorted((shared_tmp / "rt" / "interface").glob("interface_t*.csv"))
+    assert len(files) == 2  # start and end (output.every = 0 in the small variant)
+    if MPI.COMM_WORLD.rank == 0:
+        lines = read_interface(files[-1])
+        # one interface from wall to wall, gathered across ranks into a single polyline
+        assert len(lines) == 1
+        xs = lines[0][:, 0]
+        assert xs.min() == pytest.approx(-0.5) and xs.max() == pytest.approx(0.5)
+    # also the writer alone, with an empty rank
+    segs = np.array([[[0.0, 0.0], [1.0, 0.0]]]) if MPI.COMM_WORLD.rank == 0 else np.zeros((0, 2, 2))
+    write_interface(MPI.COMM_WORLD, shared_tmp / "one.csv", segs)
+    MPI.COMM_WORLD.Barrier()
+    assert len(read_interface(shared_tmp / "one.csv")) == 1
