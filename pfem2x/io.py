@@ -33,6 +33,8 @@ __all__ = [
     "write_interface",
     "gather_p1",
     "png_snapshot",
+    "pyvista_usable",
+    "quiet_vtk",
     "write_json",
     "write_vtp",
 ]
@@ -296,7 +298,7 @@ def png_snapshot(
     if gdim == 1:
         _png_1d(path, coords, vals, title)
         return
-    if _pyvista_usable():
+    if pyvista_usable():
         _png_pyvista(path, coords, vals, title, clim, contour)
     else:
         _png_matplotlib(path, coords, vals, title, clim, contour)
@@ -311,7 +313,20 @@ pl.screenshot(None, return_img=True)
 """
 
 
-def _pyvista_usable() -> bool:
+def quiet_vtk() -> None:
+    """Silence VTK's warnings (e.g. "bad X server connection" on headless machines)."""
+    try:
+        import pyvista as pv  # noqa: PLC0415
+        from vtkmodules.vtkCommonCore import vtkLogger, vtkObject  # noqa: PLC0415
+
+        pv.OFF_SCREEN = True
+        vtkObject.GlobalWarningDisplayOff()
+        vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)
+    except ImportError:  # pragma: no cover
+        pass
+
+
+def pyvista_usable() -> bool:
     """Whether pyvista can render off-screen here (probed once, in a child process).
 
     Without an OpenGL stack (EGL/OSMesa) VTK aborts the whole process, so the
@@ -360,14 +375,7 @@ def _png_pyvista(
         warnings.simplefilter("ignore")
         import pyvista as pv  # noqa: PLC0415
 
-    pv.OFF_SCREEN = True
-    try:  # no "bad X server connection" warnings on headless machines
-        from vtkmodules.vtkCommonCore import vtkLogger, vtkObject  # noqa: PLC0415
-
-        vtkObject.GlobalWarningDisplayOff()
-        vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)
-    except ImportError:  # pragma: no cover
-        pass
+    quiet_vtk()
     nc, nv, gdim = coords.shape
     pts = np.zeros((nc * nv, 3))
     pts[:, :gdim] = coords.reshape(-1, gdim)

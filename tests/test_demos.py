@@ -38,3 +38,29 @@ def test_demo_converts_to_notebook(tmp_path):
     os.makedirs(tmp_path, exist_ok=True)
     jupytext.write(nb, tmp_path / "demo.ipynb")
     assert (tmp_path / "demo.ipynb").stat().st_size > 0
+
+
+def test_explorer_runs_as_a_notebook(tmp_path, monkeypatch):
+    """The interface explorer converts to a notebook and executes headless."""
+    jupytext = pytest.importorskip("jupytext")
+    nbclient = pytest.importorskip("nbclient")
+    pytest.importorskip("ipykernel")
+    monkeypatch.setenv("PFEM2X_DEMO_SMALL", "1")
+    monkeypatch.setenv("PFEM2X_DEMO_OUT", str(tmp_path))
+    monkeypatch.setenv("MPLBACKEND", "Agg")
+    path = next(p for p in DEMOS if p.stem == "explore_interfaces")
+    nb = jupytext.read(path)
+    nb.metadata["kernelspec"] = {
+        "name": "python3",
+        "display_name": "Python 3",
+        "language": "python",
+    }
+    client = nbclient.NotebookClient(
+        nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}
+    )
+    client.execute()
+    outputs = "".join(
+        o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", [])
+    )
+    assert "status ok" in outputs
+    assert (tmp_path / "explore" / "tips.png").stat().st_size > 1000
