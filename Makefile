@@ -28,7 +28,7 @@ $(VENV)/.stamp: pyproject.toml .ci/setup-system.sh
 	touch $@
 
 demo: setup
-	$(VENV)/bin/pfem2x run gaussian-hill --out runs/demo --overwrite
+	$(VENV)/bin/pfem2x run gaussian-hill --set method.frame=lagrangian --out runs/demo --overwrite
 
 lint: setup
 	$(VENV)/bin/ruff check $(LINT_DIRS)

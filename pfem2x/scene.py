@@ -369,15 +369,17 @@ def builtin_scenes() -> dict[str, Path]:
 def resolve_scene_path(name_or_path: str) -> Path:
     """A path to a scene file, or a built-in scene name."""
     p = Path(name_or_path)
+    known = builtin_scenes()
+    if (
+        name_or_path in known and not p.is_file()
+    ):  # a folder of that name (e.g. outputs) does not hide it
+        return known[name_or_path]
     if p.suffix == ".toml" or p.exists() or "/" in name_or_path:
         if not p.exists():
             raise SceneError(f"{name_or_path}: no such scene file")
         if not p.is_file():
             raise SceneError(f"{name_or_path}: not a file")
         return p
-    known = builtin_scenes()
-    if name_or_path in known:
-        return known[name_or_path]
     near = difflib.get_close_matches(name_or_path, list(known), n=1)
     hint = f" (did you mean {near[0]!r}?)" if near else ""
     raise SceneError(
