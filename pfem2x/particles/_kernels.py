@@ -37,7 +37,7 @@ TOL = 1e-10  # barycentric tolerance for "inside"
 EPS_IN = 1e-9  # barycentric offset used to push a point back inside a wall
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def _bary(x, c, origin, inv, lam):
     """Barycentric coordinates of ``x`` in cell ``c`` into ``lam``; returns min."""
     tdim = inv.shape[1]
@@ -57,28 +57,32 @@ def _bary(x, c, origin, inv, lam):
     return m
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _project_to_facet(x, c, i, lam_i, inv):
     """Move ``x`` onto the plane ``lambda_i = EPS_IN`` of cell ``c`` (drops the overshoot)."""
     tdim = inv.shape[1]
     gdim = inv.shape[2]
     g2 = 0.0
-    gv = np.zeros(3)
     for j in range(gdim):
-        if i == 0:
-            v = 0.0
-            for k in range(tdim):
-                v -= inv[c, k, j]
-        else:
-            v = inv[c, i - 1, j]
-        gv[j] = v
+        v = _facet_grad(inv, c, i, j, tdim)
         g2 += v * v
     f = (lam_i - EPS_IN) / g2
     for j in range(gdim):
-        x[j] -= f * gv[j]
+        x[j] -= f * _facet_grad(inv, c, i, j, tdim)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
+def _facet_grad(inv, c, i, j, tdim):
+    """Component ``j`` of the gradient of barycentric coordinate ``i`` in cell ``c``."""
+    if i == 0:
+        v = 0.0
+        for k in range(tdim):
+            v -= inv[c, k, j]
+        return v
+    return inv[c, i - 1, j]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def walk(x, c, origin, inv, nbr, pshift, period, lam, shift, maxit):
     """Walk from cell ``c`` to the cell containing ``x`` (modified in place).
 
@@ -121,7 +125,7 @@ def walk(x, c, origin, inv, nbr, pshift, period, lam, shift, maxit):
     return c, ST_FAIL
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def _eval_vec(vals, dofs, c, lam, out, scale, add):
     """``out (+)= scale * sum_i lam_i vals[dofs[c, i]]`` for a ``(ndofs, k)`` array."""
     k = vals.shape[1]
@@ -136,7 +140,7 @@ def _eval_vec(vals, dofs, c, lam, out, scale, add):
             out[j] = scale * v
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def _eval_scalar(vals, dofs, c, lam):
     v = 0.0
     for i in range(dofs.shape[1]):
@@ -144,7 +148,7 @@ def _eval_scalar(vals, dofs, c, lam):
     return v
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _grad_norm(vals, dofs, c, inv):
     """Frobenius norm of the (cell-constant) gradient of a P1 vector field in cell ``c``."""
     tdim = inv.shape[1]
@@ -163,7 +167,7 @@ def _grad_norm(vals, dofs, c, inv):
     return np.sqrt(s)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def grad_norms(vals, dofs, cells, inv):
     """:func:`_grad_norm` for many cells."""
     out = np.empty(cells.shape[0])
@@ -172,7 +176,7 @@ def grad_norms(vals, dofs, cells, inv):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def locate_many(x, cells, origin, inv, nbr, pshift, period, n_owned, maxit):
     """Walk every point ``x[p]`` from ``cells[p]``; returns ``(cells, status, shifts)``.
 
@@ -202,7 +206,7 @@ def locate_many(x, cells, origin, inv, nbr, pshift, period, n_owned, maxit):
     return out, st, shifts
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def contains(x, cells, origin, inv, tol):
     """Whether each ``x[p]`` lies in ``cells[p]`` (barycentric tolerance ``tol``)."""
     n = x.shape[0]
@@ -216,7 +220,7 @@ def contains(x, cells, origin, inv, tol):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def clamp_into(x, cells, origin, inv, coords):
     """Move each ``x[p]`` to the closest point of ``cells[p]`` in barycentric terms."""
     n = x.shape[0]
@@ -237,7 +241,7 @@ def clamp_into(x, cells, origin, inv, coords):
             x[p, j] = v
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def theta_stage(xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc):
     """Fixed point of eq. (2.10): ``x = y + theta*dt*V^{n+1}(x)`` starting at ``xp`` in ``c``.
 
@@ -268,8 +272,8 @@ def theta_stage(xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period
     return c, ST_OK
 
 
-@njit(cache=True)
-def advect_p1(
+@njit(cache=True, error_model="numpy")
+def _advect_p1_any(
     x,
     cell,
     t_left,
@@ -327,8 +331,9 @@ def advect_p1(
         tl = t_left[p]
         a = acc[p]
         if stage[p] == STAGE_PATH:
+            # lam holds the barycentrics of xp in c (the last walk leaves them there)
+            _bary(xp, c, origin, inv, lam)
             while tl > 1e-14 * dt:
-                _bary(xp, c, origin, inv, lam)
                 _eval_vec(un, dofs, c, lam, v1, 1.0, False)
                 if nsub > 0:
                     h = dt / nsub
@@ -384,6 +389,7 @@ def advect_p1(
                     tl -= h
                     nsteps += 1
                     c = cn
+                    lam, lam2 = lam2, lam
                     st = s if s != ST_OK else (ST_GHOST if c >= n_owned else ST_OK)
                     if st == ST_OK:
                         continue
@@ -404,6 +410,7 @@ def advect_p1(
                 tl -= h
                 nsteps += 1
                 c = cn
+                lam, lam2 = lam2, lam
                 if s != ST_OK:
                     st = s
                     break
@@ -436,7 +443,312 @@ def advect_p1(
     return nsteps
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
+def advect_p1(
+    x,
+    cell,
+    t_left,
+    aux,
+    acc,
+    stage,
+    status,
+    dt,
+    un,
+    un1,
+    theta,
+    q,
+    has_q,
+    courant,
+    gcourant,
+    nsub,
+    origin,
+    inv,
+    nbr,
+    pshift,
+    period,
+    hc,
+    dofs,
+    n_owned,
+):
+    """Fused X-IVAS move + locate of every unfinished particle (P1 velocity).
+
+    Heun (RK2) sub-steps along the streamline of ``un`` (``(ndofs, gdim)``),
+    each of local Courant number ``courant`` and at most ``gcourant``
+    times the inverse velocity-gradient norm of the cell (or ``dt/nsub``
+    when ``nsub > 0``); then, when ``theta > 0``, the fixed point of eq. (2.10)
+    with ``un1``. Along the path ``acc += int q dt`` (trapezoid per sub-step)
+    when ``has_q``. ``aux`` holds the accumulated displacement (stage 0) or
+    the anchor ``y`` (stage 1). Returns the number of sub-steps taken.
+
+    Triangles in 2D take a specialised path (scalar registers instead of
+    small work arrays); it performs the same floating-point operations in
+    the same order, so both paths give identical results.
+    """
+    if x.shape[1] == 2 and inv.shape[1] == 2:
+        return _advect_p1_tri(
+            x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
+            gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned,
+        )  # fmt: skip
+    return _advect_p1_any(
+        x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
+        gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned,
+    )  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _bary_tri(x0, x1, c, origin, inv):
+    """:func:`_bary` for a triangle in 2D: ``(lambda_0, lambda_1, lambda_2)``."""
+    d0 = x0 - origin[c, 0]
+    d1 = x1 - origin[c, 1]
+    l1 = inv[c, 0, 0] * d0 + inv[c, 0, 1] * d1
+    l2 = inv[c, 1, 0] * d0 + inv[c, 1, 1] * d1
+    return 1.0 - (l1 + l2), l1, l2
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _walk_tri(x0, x1, c, origin, inv, nbr, pshift, period, maxit):
+    """:func:`walk` for triangles in 2D on scalars.
+
+    Returns ``(x0, x1, cell, status, l0, l1, l2, shift0, shift1)``.
+    """
+    s0 = 0.0
+    s1 = 0.0
+    l0 = 0.0
+    l1 = 0.0
+    l2 = 0.0
+    for _ in range(maxit):
+        l0, l1, l2 = _bary_tri(x0, x1, c, origin, inv)
+        best = 0
+        bv = l0
+        if l1 < bv:
+            bv = l1
+            best = 1
+        if l2 < bv:
+            bv = l2
+            best = 2
+        if bv >= -TOL:
+            return x0, x1, c, ST_OK, l0, l1, l2, s0, s1
+        nb = nbr[c, best]
+        if nb == WALL:
+            if best == 0:
+                g0 = -inv[c, 0, 0] - inv[c, 1, 0]
+                g1 = -inv[c, 0, 1] - inv[c, 1, 1]
+            else:
+                g0 = inv[c, best - 1, 0]
+                g1 = inv[c, best - 1, 1]
+            f = (bv - EPS_IN) / (g0 * g0 + g1 * g1)
+            x0 -= f * g0
+            x1 -= f * g1
+            continue
+        ps = pshift[c, best]
+        if ps != 0:
+            ax = abs(ps) - 1
+            d = -period[ax] if ps > 0 else period[ax]
+            if ax == 0:
+                x0 += d
+                s0 += d
+            else:
+                x1 += d
+                s1 += d
+        if nb >= 0:
+            c = nb
+            continue
+        if nb == OUTFLOW:
+            return x0, x1, c, ST_OUTFLOW, l0, l1, l2, s0, s1
+        return x0, x1, c, ST_REMOTE, l0, l1, l2, s0, s1
+    return x0, x1, c, ST_FAIL, l0, l1, l2, s0, s1
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _eval_tri(vals, j, d0, d1, d2, l0, l1, l2):
+    return l0 * vals[d0, j] + l1 * vals[d1, j] + l2 * vals[d2, j]
+
+
+@njit(cache=True, error_model="numpy")
+def _advect_p1_tri(
+    x,
+    cell,
+    t_left,
+    aux,
+    acc,
+    stage,
+    status,
+    dt,
+    un,
+    un1,
+    theta,
+    q,
+    has_q,
+    courant,
+    gcourant,
+    nsub,
+    origin,
+    inv,
+    nbr,
+    pshift,
+    period,
+    hc,
+    dofs,
+    n_owned,
+):
+    """:func:`advect_p1` for triangles in 2D (scalars, no work arrays in the sub-steps)."""
+    n = x.shape[0]
+    xp = np.empty(3)
+    lam = np.empty(4)
+    sh = np.zeros(3)
+    y = np.empty(3)
+    nsteps = 0
+    for p in range(n):
+        if stage[p] == STAGE_DONE:
+            continue
+        c = cell[p]
+        p0 = x[p, 0]
+        p1 = x[p, 1]
+        st = ST_OK
+        tl = t_left[p]
+        a = acc[p]
+        if stage[p] == STAGE_PATH:
+            a0 = aux[p, 0]
+            a1 = aux[p, 1]
+            l0, l1, l2 = _bary_tri(p0, p1, c, origin, inv)
+            while tl > 1e-14 * dt:
+                d0 = dofs[c, 0]
+                d1 = dofs[c, 1]
+                d2 = dofs[c, 2]
+                v0 = _eval_tri(un, 0, d0, d1, d2, l0, l1, l2)
+                v1 = _eval_tri(un, 1, d0, d1, d2, l0, l1, l2)
+                if nsub > 0:
+                    h = dt / nsub
+                    m = np.ceil(tl / h - 1e-9)
+                    if m < 1.0:
+                        m = 1.0
+                    h = tl / m
+                else:
+                    rate = np.sqrt(v0 * v0 + v1 * v1) / (courant * hc[c])
+                    if gcourant > 0.0:
+                        gs = 0.0
+                        for k in range(2):
+                            for b in range(2):
+                                g = -inv[c, 0, b] - inv[c, 1, b]
+                                gv = un[d0, k] * g + un[d1, k] * inv[c, 0, b]
+                                gv += un[d2, k] * inv[c, 1, b]
+                                gs += gv * gv
+                        gr = np.sqrt(gs) / gcourant
+                        if gr > rate:
+                            rate = gr
+                    m = np.ceil(tl * rate)
+                    if m < 1.0:
+                        m = 1.0
+                    h = tl / m
+                # midpoint (predictor) with retries when it leaves the local mesh
+                ok = False
+                s = ST_OK
+                cm = c
+                m0 = 0.0
+                m1 = 0.0
+                m2 = 0.0
+                for _r in range(12):
+                    _x0, _x1, cm, s, m0, m1, m2, _s0, _s1 = _walk_tri(
+                        p0 + h * v0, p1 + h * v1, c, origin, inv, nbr, pshift, period, 1000
+                    )
+                    if s == ST_OK:
+                        ok = True
+                        break
+                    if s == ST_OUTFLOW or s == ST_FAIL:
+                        break
+                    if c >= n_owned:  # REMOTE from a ghost cell: let the owner continue
+                        break
+                    h *= 0.5
+                if not ok:
+                    if s == ST_REMOTE and c >= n_owned:
+                        st = ST_GHOST
+                        break
+                    # outflow / fail / remote from an owned cell: explicit Euler step
+                    q0 = l0 * q[d0] + l1 * q[d1] + l2 * q[d2] if has_q else 0.0
+                    n0, n1, cn, s, l0, l1, l2, s0, s1 = _walk_tri(
+                        p0 + h * v0, p1 + h * v1, c, origin, inv, nbr, pshift, period, 1000
+                    )
+                    if has_q:
+                        a += h * q0
+                    a0 += n0 - s0 - p0
+                    a1 += n1 - s1 - p1
+                    p0 = n0
+                    p1 = n1
+                    tl -= h
+                    nsteps += 1
+                    c = cn
+                    st = s if s != ST_OK else (ST_GHOST if c >= n_owned else ST_OK)
+                    if st == ST_OK:
+                        continue
+                    break
+                e0 = dofs[cm, 0]
+                e1 = dofs[cm, 1]
+                e2 = dofs[cm, 2]
+                w0 = _eval_tri(un, 0, e0, e1, e2, m0, m1, m2)
+                w1 = _eval_tri(un, 1, e0, e1, e2, m0, m1, m2)
+                q0 = l0 * q[d0] + l1 * q[d1] + l2 * q[d2] if has_q else 0.0
+                n0, n1, cn, s, l0, l1, l2, s0, s1 = _walk_tri(
+                    p0 + 0.5 * h * (v0 + w0),
+                    p1 + 0.5 * h * (v1 + w1),
+                    c,
+                    origin,
+                    inv,
+                    nbr,
+                    pshift,
+                    period,
+                    1000,
+                )
+                if has_q and s == ST_OK:
+                    q1 = l0 * q[dofs[cn, 0]] + l1 * q[dofs[cn, 1]] + l2 * q[dofs[cn, 2]]
+                    a += 0.5 * h * (q0 + q1)
+                elif has_q:
+                    a += h * q0
+                a0 += n0 - s0 - p0
+                a1 += n1 - s1 - p1
+                p0 = n0
+                p1 = n1
+                tl -= h
+                nsteps += 1
+                c = cn
+                if s != ST_OK:
+                    st = s
+                    break
+            aux[p, 0] = a0
+            aux[p, 1] = a1
+            if st == ST_OK:
+                tl = 0.0
+                if theta > 0.0:
+                    stage[p] = STAGE_THETA
+                    aux[p, 0] = p0 - theta * aux[p, 0]
+                    aux[p, 1] = p1 - theta * aux[p, 1]
+                else:
+                    stage[p] = STAGE_DONE
+        if st == ST_OK and stage[p] == STAGE_THETA:
+            xp[0] = p0
+            xp[1] = p1
+            y[0] = aux[p, 0]
+            y[1] = aux[p, 1]
+            c, st = theta_stage(
+                xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc
+            )
+            aux[p, 0] = y[0]
+            aux[p, 1] = y[1]
+            p0 = xp[0]
+            p1 = xp[1]
+            if st == ST_OK:
+                stage[p] = STAGE_DONE
+        if st == ST_OK and c >= n_owned:
+            st = ST_GHOST
+        x[p, 0] = p0
+        x[p, 1] = p1
+        cell[p] = c
+        t_left[p] = tl
+        acc[p] = a
+        status[p] = st
+    return nsteps
+
+
+@njit(cache=True, error_model="numpy")
 def evaluate_p1(x, cells, vals, origin, inv, dofs):
     """Values of a P1 field ``vals (ndofs, k)`` at the points ``x`` in ``cells``."""
     n = x.shape[0]
@@ -453,7 +765,7 @@ def evaluate_p1(x, cells, vals, origin, inv, dofs):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def project_accumulate(x, cells, vals, origin, inv, dofs, coords, hc, acc, linear):
     """Accumulate the per-node moments of a particle → P1 projection into ``acc``.
 
@@ -461,6 +773,9 @@ def project_accumulate(x, cells, vals, origin, inv, dofs, coords, hc, acc, linea
     ``[W, count, W*h, W*dx (g), W*dx⊗dx (g(g+1)/2), W*T (k), W*T*dx (k*g)]``
     with ``W = N_i(x_p)`` and ``dx = x_p - x_i``.
     """
+    if x.shape[1] == 2 and dofs.shape[1] == 3:
+        _project_accumulate_tri(x, cells, vals, origin, inv, dofs, coords, hc, acc, linear)
+        return
     n = x.shape[0]
     gdim = x.shape[1]
     k = vals.shape[1]
@@ -501,7 +816,7 @@ def project_accumulate(x, cells, vals, origin, inv, dofs, coords, hc, acc, linea
                     acc[d, o + k + j * gdim + a] += wt * dx[a]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _inv_sym(C, gdim, Ci):
     """Inverse of a small symmetric positive matrix; returns its determinant."""
     if gdim == 1:
@@ -536,7 +851,7 @@ def _inv_sym(C, gdim, Ci):
     return det
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def project_solve(acc, gdim, k, linear, out, filled, fb, min_spread, max_extrap):
     """Nodal values from the accumulated moments (see :func:`project_accumulate`).
 
@@ -606,7 +921,7 @@ def project_solve(acc, gdim, k, linear, out, filled, fb, min_spread, max_extrap)
     return nfb
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def neighbour_fill_accumulate(dofs, n_owned, filled, vals, acc):
     """For every empty node, sum the values of filled nodes sharing an owned cell."""
     nv = dofs.shape[1]
@@ -624,7 +939,7 @@ def neighbour_fill_accumulate(dofs, n_owned, filled, vals, acc):
                         acc[di, 1 + j] += vals[dm, j]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def counting_sort(cells, ncells):
     """Stable counting sort by cell: ``(order, offsets)``."""
     n = cells.shape[0]
@@ -642,7 +957,7 @@ def counting_sort(cells, ncells):
     return order, counts
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _mix64(z):
     """splitmix64 finaliser on uint64."""
     z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
@@ -650,7 +965,7 @@ def _mix64(z):
     return z ^ (z >> np.uint64(31))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _uniform(state):
     """Next uniform in [0, 1) of a splitmix64 stream; returns ``(u, state)``."""
     state = state + np.uint64(0x9E3779B97F4A7C15)
@@ -658,7 +973,7 @@ def _uniform(state):
     return (z >> np.uint64(11)) * (1.0 / 9007199254740992.0), state
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _sample_simplex(state, coords, c, out, u):
     """Uniform point of simplex ``c`` into ``out`` (sorted-uniform spacings)."""
     tdim = coords.shape[1] - 1
@@ -685,7 +1000,7 @@ def _sample_simplex(state, coords, c, out, u):
     return state
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def seed_cells(cells, counts, keys, seed, coords):
     """``counts[i]`` uniform random points in each cell ``cells[i]``.
 
@@ -713,7 +1028,7 @@ def seed_cells(cells, counts, keys, seed, coords):
     return x, out_c
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _fit_eval(x, vals, idx, nidx, pt, out, gdim):
     """Weighted-free linear least-squares fit of ``vals[idx]`` evaluated at ``pt``.
 
@@ -762,7 +1077,7 @@ def _fit_eval(x, vals, idx, nidx, pt, out, gdim):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _idw_eval(x, vals, idx, nidx, pt, out, gdim):
     k = vals.shape[1]
     if nidx == 0:
@@ -783,7 +1098,7 @@ def _idw_eval(x, vals, idx, nidx, pt, out, gdim):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def population_plan(offsets, n_owned, nmin, nmax, only):
     """Number of particles to add (``> 0``) or remove (``< 0``) per owned cell."""
     plan = np.zeros(n_owned, dtype=np.int64)
@@ -798,7 +1113,7 @@ def population_plan(offsets, n_owned, nmin, nmax, only):
     return plan
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def population_remove(x, order, offsets, plan, remove):
     """Mark the most crowded particles (smallest nearest-neighbour distance) of crowded cells."""
     gdim = x.shape[1]
@@ -831,7 +1146,7 @@ def population_remove(x, order, offsets, plan, remove):
                 remove[worst] = True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def population_add(x, vals, order, offsets, plan, keys, seed, coords, nbr, use_values, ncand):
     """New particles for cells short of particles.
 
@@ -912,3 +1227,42 @@ def population_add(x, vals, order, offsets, plan, keys, seed, coords, nbr, use_v
                         nvals[q, j] = out[j]
             q += 1
     return nx, ncell, nvals, src
+
+
+@njit(cache=True, error_model="numpy")
+def _project_accumulate_tri(x, cells, vals, origin, inv, dofs, coords, hc, acc, linear):
+    """:func:`project_accumulate` for triangles in 2D (same operations, scalar registers)."""
+    n = x.shape[0]
+    k = vals.shape[1]
+    for p in range(n):
+        c = cells[p]
+        x0 = x[p, 0]
+        x1 = x[p, 1]
+        l0, l1, l2 = _bary_tri(x0, x1, c, origin, inv)
+        hcc = hc[c]
+        for i in range(3):
+            w = l0 if i == 0 else (l1 if i == 1 else l2)
+            if w < 0.0:
+                w = 0.0
+            elif w > 1.0:
+                w = 1.0
+            d = dofs[c, i]
+            acc[d, 0] += w
+            if not linear:
+                for j in range(k):
+                    acc[d, 1 + j] += w * vals[p, j]
+                continue
+            acc[d, 1] += 1.0
+            acc[d, 2] += w * hcc
+            dx0 = x0 - coords[c, i, 0]
+            dx1 = x1 - coords[c, i, 1]
+            acc[d, 3] += w * dx0
+            acc[d, 4] += w * dx1
+            acc[d, 5] += w * dx0 * dx0
+            acc[d, 6] += w * dx0 * dx1
+            acc[d, 7] += w * dx1 * dx1
+            for j in range(k):
+                wt = w * vals[p, j]
+                acc[d, 8 + j] += wt
+                acc[d, 8 + k + 2 * j] += wt * dx0
+                acc[d, 9 + k + 2 * j] += wt * dx1

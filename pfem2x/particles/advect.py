@@ -117,6 +117,8 @@ def advect(
         raise ValueError("theta > 0 needs P1 velocities (u^n and u^{n+1}), not a callable")
     if theta > 0.0 and velocity_next is None:
         raise ValueError("theta > 0 needs velocity_next")
+    if not nsub and not courant > 0.0:
+        raise ValueError("courant must be positive (or give substeps)")
     un = np.zeros((pm.n_dofs, gd)) if vel_call else nodal_values(pm, velocity, gd)
     un1 = nodal_values(pm, velocity_next, gd) if theta > 0.0 else np.zeros((1, gd))
     has_q = source is not None and not src_call
