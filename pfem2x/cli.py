@@ -1,7 +1,8 @@
 """Command line: ``pfem2x run | check | scenes | study``.
 
 Exit codes: 0 ok, 2 bad input (one ``error:`` line on stderr naming the key
-or file), 3 the simulation diverged.
+or file), 3 the simulation diverged, 130 / 143 interrupted by SIGINT / SIGTERM
+(after writing a checkpoint; continue with ``pfem2x run --resume DIR``).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ def _parser() -> argparse.ArgumentParser:
     p = _Parser(prog="pfem2x", description="PFEM-2 particle-mesh flow solver on DOLFINx")
     sub = p.add_subparsers(dest="cmd", required=True, parser_class=_Parser)
     r = sub.add_parser("run", help="run a scene")
-    r.add_argument("scene", help="a scene file (.toml) or a built-in scene name")
+    r.add_argument("scene", nargs="?", help="a scene file (.toml) or a built-in scene name")
     r.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", help="override a scene key"
     )
@@ -31,6 +32,11 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--out", help="output folder (default runs/SCENE)")
     r.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     r.add_argument("--quiet", action="store_true", help="no progress bar or messages")
+    r.add_argument(
+        "--resume",
+        metavar="DIR",
+        help="continue the interrupted run in DIR from its checkpoint (same number of ranks)",
+    )
     c = sub.add_parser("check", help="validate a scene (and build its mesh) without running")
     c.add_argument("scene")
     c.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
@@ -57,6 +63,10 @@ def main(argv: list[str] | None = None) -> int:
 
     comm = MPI.COMM_WORLD
     try:
+        if args.cmd == "run" and args.resume is not None:
+            return _resume(args, comm)
+        if args.scene is None:
+            raise SceneError("run: give a scene, or --resume DIR")
         scene = load_scene(args.scene, args.set, args.variant)
         # DOLFINx is imported only once the scene is known to be sane.
         from pfem2x.runner import Simulation, build_domain, make_solver, time_grid  # noqa: PLC0415
@@ -83,6 +93,29 @@ def main(argv: list[str] | None = None) -> int:
         if comm.rank == 0:
             print("error: interrupted", file=sys.stderr)
         return 130
+
+
+def _resume(args: argparse.Namespace, comm: object) -> int:
+    """``pfem2x run --resume DIR``: the scene and options come from DIR."""
+    from pfem2x.scene import SceneError  # noqa: PLC0415
+
+    given = [
+        opt
+        for opt, v in (
+            ("SCENE", args.scene),
+            ("--set", args.set),
+            ("--variant", args.variant),
+            ("--out", args.out),
+            ("--overwrite", args.overwrite),
+        )
+        if v
+    ]
+    if given:
+        raise SceneError(f"--resume: takes the scene and folder from DIR, not {', '.join(given)}")
+    from pfem2x.runner import Simulation  # noqa: PLC0415
+
+    sim = Simulation.resume(Path(args.resume), comm, quiet=args.quiet)
+    return sim.run().exit_code
 
 
 def _scenes() -> int:

@@ -88,14 +88,31 @@ class FieldWriter:
 
 
 class CSVWriter:
-    """Diagnostics over time, one row per step, written by rank 0 (flushed every row)."""
+    """Diagnostics over time, one row per step, written by rank 0 (flushed every row).
 
-    def __init__(self, comm: MPI.Comm, path: str | os.PathLike):
+    ``keep_rows``: continue an existing file (a resumed run): keep its header and
+    first ``keep_rows`` rows, drop the rest, append new rows.
+    """
+
+    def __init__(self, comm: MPI.Comm, path: str | os.PathLike, keep_rows: int | None = None):
         self.rank = comm.rank
         self.path = Path(path)
         self._f = None
         self._w: Any = None
         self._cols: list[str] | None = None
+        if keep_rows is not None and self.rank == 0 and self.path.is_file():
+            self._continue(keep_rows)
+
+    def _continue(self, keep_rows: int) -> None:
+        """Keep the header and the first ``keep_rows`` rows of an existing file, append after."""
+        with open(self.path, newline="", encoding="utf-8") as f:
+            lines = f.read().splitlines(keepends=True)
+        if not lines:
+            return
+        atomic_write_text(self.path, "".join(lines[: 1 + keep_rows]))
+        self._cols = next(csv.reader(lines[:1]))
+        self._f = open(self.path, "a", newline="", encoding="utf-8")  # noqa: SIM115
+        self._w = csv.DictWriter(self._f, fieldnames=self._cols, extrasaction="ignore")
 
     def write(self, row: dict[str, Any]) -> None:
         """Append a row (the first row fixes the columns; later new keys are dropped)."""

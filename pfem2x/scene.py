@@ -226,6 +226,17 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "courant": Key(number(0.0, 1000.0, lo_open=True)),
         "max_steps": Key(integer(1), 10_000_000),
         "adaptive": Key(boolean, False, doc="re-evaluate dt every step from time.courant"),
+        "max_courant": Key(
+            number(0.0),
+            doc="a Courant number above this is divergence (default 50 x time.courant, "
+            "or 1000 with time.dt; 0: no check)",
+        ),
+        "max_energy_growth": Key(
+            number(0.0),
+            100.0,
+            doc="kinetic energy above this factor x max(initial, peak, reference) is "
+            "divergence (0: no check)",
+        ),
     },
     "method": {
         "frame": Key(choice("lagrangian", "eulerian", "characteristic"), "eulerian"),
@@ -252,6 +263,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "png": Key(boolean, True),
         "png_times": Key(times_check, doc="times at which PNG snapshots are written"),
         "csv": Key(boolean, True),
+        "checkpoint_every": Key(
+            integer(0), 0, doc="write a restart checkpoint every N steps (0: only on a signal)"
+        ),
     },
     "transport": {
         "field": Key(string, "T"),

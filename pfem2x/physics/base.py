@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -81,12 +83,227 @@ class Solver:
             if self.comm.allreduce(bad, op=MPI.MAX):
                 raise Diverged(f"field {name} is not finite")
 
+    def energy_scale(self) -> float:
+        """A reference kinetic energy for the runner's energy guard (0: none)."""
+        return 0.0
+
     def state(self) -> dict[str, np.ndarray]:
-        """A copy of the mesh field arrays (for the last good state)."""
-        return {k: u.x.array.copy() for k, u in self.fields().items()}
+        """Copies of the output fields and the particle cloud (the last good state).
+
+        Lighter than :meth:`checkpoint`: what is needed to write the state for
+        inspection, not to continue from it.
+        """
+        out = {f"field.{k}": u.x.array.copy() for k, u in self.fields().items()}
+        cloud = self.cloud()
+        if cloud is not None:
+            out.update(_cloud_arrays(cloud))
+        return out
 
     def restore(self, state: dict[str, np.ndarray]) -> None:
-        """Put back arrays from :meth:`state`."""
+        """Put back arrays from :meth:`state` (or :meth:`checkpoint`)."""
         for k, u in self.fields().items():
-            if k in state:
-                u.x.array[:] = state[k]
+            if f"field.{k}" in state:
+                u.x.array[:] = state[f"field.{k}"]
+        cloud = self.cloud()
+        if cloud is not None and "cloud.x" in state:
+            _restore_cloud(cloud, state)
+
+    # -- checkpoint / restart ---------------------------------------------------
+    #: attributes never saved by :meth:`checkpoint` (set-up data, objects)
+    checkpoint_exclude: frozenset[str] = frozenset({"scene", "domain", "comm", "name"})
+
+    def checkpoint(self) -> dict[str, np.ndarray]:
+        """Everything this rank needs to continue bit-identically, as named arrays.
+
+        Collected from the solver's attributes, so that state added later is
+        not forgotten: every DOLFINx ``Function`` (all entries, ghosts
+        included), every NumPy array, and every plain value (numbers, strings,
+        ``None``, and lists / tuples / dicts of them, stored as JSON), the
+        particle cloud (positions, cells, every field including hidden ones)
+        and NumPy's global random state. Objects (forms, matrices, solvers)
+        are rebuilt by the constructor; anything they cache must be
+        recomputable from the saved state (operators are re-assembled when
+        ``None`` or when ``dt`` changes). Subclasses with other state extend this.
+        """
+        from pfem2x import compat  # noqa: PLC0415
+
+        Function = compat.dolfinx.fem.Function
+        out: dict[str, np.ndarray] = {}
+        for name, v in sorted(vars(self).items()):
+            if name in self.checkpoint_exclude:
+                continue
+            if isinstance(v, Function):
+                out[f"function.{name}"] = v.x.array.copy()
+                out[f"dofmap.{name}"] = compat.dofmap_array(v.function_space)
+            elif isinstance(v, np.ndarray) and v.dtype != object:
+                out[f"array.{name}"] = v.copy()
+            else:
+                text = _json_or_none(v)
+                if text is not None:
+                    out[f"json.{name}"] = np.array(text)
+        # the partition: input index of every local cell (owned, then ghosts)
+        out["mesh.cells"] = compat.original_cell_index(self.domain.mesh)
+        out["mesh.owned"] = np.array(self.domain.table.num_cells_owned)
+        cloud = self.cloud()
+        if cloud is not None:
+            out.update(_cloud_arrays(cloud))
+        # pfem2x seeds its own generators; the legacy global state is kept for user code
+        kind, keys, pos, has_gauss, cached = np.random.get_state()  # noqa: NPY002
+        out["rng.keys"] = np.asarray(keys)
+        out["rng.meta"] = np.array(json.dumps([kind, int(pos), int(has_gauss), float(cached)]))
+        return out
+
+    def restore_checkpoint(
+        self,
+        data: dict[str, np.ndarray],
+        load_rank: Callable[[int], dict[str, np.ndarray]] | None = None,
+    ) -> None:
+        """Put back the state of :meth:`checkpoint` (collective; same scene and rank count).
+
+        When every rank has the mesh partition of the checkpoint (always
+        serially; under MPI when the partitioner is deterministic) all arrays
+        are put back as they were: the run continues bit-identically.
+        Otherwise (the graph partitioner of some DOLFINx versions is not
+        reproducible) functions and particles are re-distributed by the
+        partition-independent input cell index, using the other ranks' data
+        from ``load_rank(r)``; the per-rank set-up arrays are then kept as
+        built, and the run continues within round-off.
+
+        Raises
+        ------
+        ValueError
+            If the data does not fit (another mesh or solver).
+        """
+        from pfem2x import compat  # noqa: PLC0415
+
+        Function = compat.dolfinx.fem.Function
+        cells = compat.original_cell_index(self.domain.mesh)
+        same = int(np.array_equal(cells, data.get("mesh.cells")))
+        same = bool(self.comm.allreduce(same, op=MPI.MIN))
+        if not same and load_rank is None:
+            raise ValueError("the mesh partition differs from the checkpoint's")
+        others = None if same else [load_rank(r) for r in range(self.comm.size)]
+        for key, v in data.items():
+            kind, _, name = key.partition(".")
+            if kind == "function":
+                u = getattr(self, name, None)
+                if not isinstance(u, Function):
+                    raise ValueError(f"function {name} is not in this solver")
+                if same:
+                    if u.x.array.shape != v.shape:
+                        raise ValueError(f"function {name} does not fit this solver")
+                    u.x.array[:] = v
+                else:
+                    _redistribute_function(u, name, others, cells, compat)
+            elif kind == "array" and same:
+                a = getattr(self, name, None)
+                if isinstance(a, np.ndarray) and a.shape == v.shape and a.flags.writeable:
+                    a[...] = v
+                else:
+                    setattr(self, name, v.copy())
+            elif kind == "json":
+                val = json.loads(str(v))
+                old = getattr(self, name, None)
+                setattr(self, name, _like(val, old))
+        cloud = self.cloud()
+        if cloud is not None and "cloud.x" in data:
+            if same:
+                _restore_cloud(cloud, data)
+            else:
+                _restore_cloud(cloud, _gather_particles(others, cells, cloud.pmesh.n_owned))
+        if "rng.keys" in data:
+            kind, pos, has_gauss, cached = json.loads(str(data["rng.meta"]))
+            np.random.set_state((kind, data["rng.keys"], pos, has_gauss, cached))  # noqa: NPY002
+
+
+def _redistribute_function(
+    u: Any, name: str, others: list[dict[str, np.ndarray]], cells: np.ndarray, compat: Any
+) -> None:
+    """Set ``u`` from all ranks' saved values, matched by (input cell, local dof)."""
+    bs = int(u.function_space.dofmap.index_map_bs)
+    keys, vals = [], []
+    for d in others:
+        n_owned = int(d["mesh.owned"])
+        dm = d[f"dofmap.{name}"][:n_owned]
+        keys.append(d["mesh.cells"][:n_owned])
+        vals.append(d[f"function.{name}"].reshape(-1, bs)[dm])  # (cells, dofs, bs)
+    gkeys = np.concatenate(keys)
+    gvals = np.concatenate(vals)
+    order = np.argsort(gkeys, kind="stable")
+    pos = order[np.searchsorted(gkeys, cells, sorter=order)]
+    if not np.array_equal(gkeys[pos], cells):
+        raise ValueError(f"function {name}: the checkpoint's mesh has other cells")
+    dm = compat.dofmap_array(u.function_space)[: len(cells)]
+    u.x.array.reshape(-1, bs)[dm] = gvals[pos]
+    u.x.scatter_forward()
+
+
+def _gather_particles(
+    others: list[dict[str, np.ndarray]], cells: np.ndarray, n_owned: int
+) -> dict[str, np.ndarray]:
+    """The saved particles of all ranks that lie in this rank's owned cells."""
+    meta = json.loads(str(others[0]["cloud_meta"]))
+    names = ["cloud.x", *[f"cloud.f.{k}" for k in meta["shapes"]]]
+    owned = cells[:n_owned]
+    order = np.argsort(owned)
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in [*names, "cloud.cells"]}
+    for d in others:
+        gc = d["mesh.cells"][d["cloud.cells"]]
+        i = np.clip(np.searchsorted(owned, gc, sorter=order), 0, max(len(owned) - 1, 0))
+        mine = (owned[order[i]] == gc) if len(owned) else np.zeros(len(gc), dtype=bool)
+        for k in names:
+            parts[k].append(d[k][mine])
+        parts["cloud.cells"].append(order[i[mine]].astype(np.int32))
+    out = {k: np.concatenate(v) for k, v in parts.items()}
+    out["cloud_meta"] = np.array(json.dumps({"shapes": meta["shapes"], "sorted": False}))
+    return out
+
+
+def _json_or_none(v: Any) -> str | None:
+    """``v`` as JSON if it is plain data (numbers, strings, None, containers), else None."""
+
+    def plain(x: Any) -> bool:
+        if x is None or isinstance(x, bool | int | float | str | np.integer | np.floating):
+            return True
+        if isinstance(x, list | tuple):
+            return all(plain(y) for y in x)
+        if isinstance(x, dict):
+            return all(isinstance(k, str) and plain(y) for k, y in x.items())
+        return False
+
+    if not plain(v):
+        return None
+    return json.dumps(v, default=lambda o: o.item())
+
+
+def _like(val: Any, old: Any) -> Any:
+    """A JSON value back in the container types of ``old`` (tuples stay tuples)."""
+    if isinstance(old, tuple) and isinstance(val, list):
+        return tuple(_like(v, o) for v, o in zip(val, old, strict=False)) + tuple(val[len(old) :])
+    if isinstance(old, dict) and isinstance(val, dict):
+        return {k: _like(v, old.get(k)) for k, v in val.items()}
+    return val
+
+
+def _cloud_arrays(cloud: Any) -> dict[str, np.ndarray]:
+    """Positions, cells and every field (hidden ones too) of a particle cloud."""
+    raw = cloud.extract(np.arange(cloud.n))
+    out = {"cloud.x": raw.pop("__x"), "cloud.cells": raw.pop("__c")}
+    shapes = {k: list(cloud.field_shape(k)) for k in raw}
+    out.update({f"cloud.f.{k}": v for k, v in raw.items()})
+    out["cloud_meta"] = np.array(json.dumps({"shapes": shapes, "sorted": cloud.is_sorted}))
+    return out
+
+
+def _restore_cloud(cloud: Any, data: dict[str, np.ndarray]) -> None:
+    meta = json.loads(str(data["cloud_meta"]))
+    for name, shape in meta["shapes"].items():
+        if name not in cloud:
+            cloud.add_field(name, tuple(shape))
+    cloud.remove(np.ones(cloud.n, dtype=bool))
+    values = {k: data[f"cloud.f.{k}"] for k in meta["shapes"]}
+    cloud.append(data["cloud.x"], data["cloud.cells"], values)
+    if meta["sorted"]:
+        cloud.sort_by_cell()  # already in cell order: only rebuilds the offsets
+    else:
+        cloud.invalidate_order()

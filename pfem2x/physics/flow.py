@@ -364,8 +364,10 @@ class FlowBase(Solver):
         v1 = float(self.comm.allreduce(np.dot(positive_fraction(vals), self.cell_vol), op=MPI.SUM))
         return {names[0]: v1, names[1]: total - v1}
 
-    def interfaces(self) -> np.ndarray:
+    def interfaces(self) -> np.ndarray | None:
         """This rank's segments ``(m, 2, 2)`` of the interface (zero iso-line of ``phi``)."""
+        if self.phi is None:
+            return None
         vals = self.phi.x.array[self.dofmap[: self.n_owned]]
         return cut_segments(vals, self.cell_xy[: self.n_owned])
 
@@ -523,6 +525,12 @@ class FlowBase(Solver):
         local = float(np.max(np.linalg.norm(arr, axis=1))) if len(arr) else 0.0
         vmax = float(self.comm.allreduce(local, op=MPI.MAX))
         return vmax if vmax > 0.0 else self.problem.velocity_scale
+
+    def energy_scale(self) -> float:
+        """``1/2 rho_max U^2 |Omega|`` with ``U`` = ``flow.velocity_scale`` (energy guard)."""
+        rho = max(ph[1] for ph in self.problem.phases)
+        vol = float(self.comm.allreduce(self.cell_vol.sum(), op=MPI.SUM))
+        return 0.5 * rho * self.problem.velocity_scale**2 * vol
 
     def time_label(self, t: float) -> str:
         """Solver time and the scene's other time unit (e.g. Tryggvason's tau)."""
