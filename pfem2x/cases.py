@@ -8,6 +8,9 @@
   the initial hill convolved with the heat kernel, evaluated at its centre.
 - ``manufactured-1d``: nothing beyond the exact-solution error that
   :class:`~pfem2x.physics.transport.TransportBase` always reports.
+- ``dam-break`` (flow): surge front and residual column height of a
+  collapsing column in Martin & Moyce's (1952) units, with their data
+  (:data:`MARTIN_MOYCE_FRONT`, :data:`MARTIN_MOYCE_HEIGHT`).
 """
 
 from __future__ import annotations
@@ -20,7 +23,39 @@ from pfem2x import compat
 from pfem2x.compat import MPI
 from pfem2x.scene import SceneError
 
-__all__ = ["Case", "make_case", "subcell_points"]
+__all__ = [
+    "MARTIN_MOYCE_FRONT",
+    "MARTIN_MOYCE_HEIGHT",
+    "Case",
+    "DamBreakCase",
+    "make_case",
+    "subcell_points",
+]
+
+#: Martin & Moyce (1952), Phil. Trans. R. Soc. A 244, 312-324, column n^2 = 2,
+#: a = 2.25 in: surge front Z = x/a against T = n t sqrt(g/a) (= t sqrt(2g/a)),
+#: their Table 2 as digitised in Ocellaris' dam-break post-processing script
+#: (github.com/TormodLandet/Ocellaris, "Data from Martin and Moyce (1952),
+#: Table 2 and 6"); the same points to +-0.02 in T in Lethe
+#: (chaos-polymtl/lethe, examples/multiphysics/dam-break/dam-break-2d.py) and,
+#: read off their Fig. 3, in PySPH (pypr/pysph, pysph/examples/db_exp_data.py).
+MARTIN_MOYCE_FRONT = np.array(
+    [
+        [0.41, 1.11], [0.84, 1.22], [1.19, 1.44], [1.43, 1.67], [1.63, 1.89],
+        [1.83, 2.11], [1.98, 2.33], [2.20, 2.56], [2.32, 2.78], [2.51, 3.00],
+        [2.65, 3.22], [2.83, 3.44], [2.98, 3.67], [3.11, 3.89], [3.33, 4.11],
+    ]
+)  # fmt: skip
+#: Same column: residual height H = h/(n^2 a) against tau = t sqrt(g/a), their
+#: Table 6 as digitised in the same Ocellaris script.
+MARTIN_MOYCE_HEIGHT = np.array(
+    [
+        [0.56, 0.94], [0.77, 0.89], [0.93, 0.83], [1.08, 0.78], [1.28, 0.72],
+        [1.46, 0.67], [1.66, 0.61], [1.84, 0.56], [2.00, 0.50], [2.21, 0.44],
+        [2.45, 0.39], [2.70, 0.33], [3.06, 0.28], [3.44, 0.22], [4.20, 0.17],
+        [5.25, 0.11], [7.40, 0.06],
+    ]
+)  # fmt: skip
 
 
 def subcell_points(tdim: int, k: int) -> np.ndarray:
@@ -166,7 +201,76 @@ class GaussianHillCase(Case):
         }
 
 
-_CASES = {"zalesak": ZalesakCase, "gaussian-hill": GaussianHillCase}
+class DamBreakCase(Case):
+    """Surge front and column height of a collapsing liquid column (Martin & Moyce 1952).
+
+    Needs ``params`` ``a`` (column width), ``n2`` (column height / ``a``) and
+    ``g``; the column stands on the floor ``y = y_min`` against the left wall
+    ``x = x_min`` and is the phase with a region. From the interface
+    (``solver.interfaces()``: level-set zero / projected phase = 1/2):
+
+    - ``front`` = largest x of the interface, ``Z = (x - x_min)/a``, against
+      ``T = n t sqrt(g/a)``;
+    - ``height`` = largest y of the interface within half a cell of the left
+      wall, ``H = (y - y_min)/(n^2 a)``, against ``tau = t sqrt(g/a)``.
+
+    A solver with particles carrying ``phase`` also gets ``front_particles``
+    / ``height_particles``: the largest x of a heavy-phase particle / its
+    largest y within a cell of the wall. Metrics: ``front`` = ``[[T, Z]]``,
+    ``height`` = ``[[tau, H]]``, and the particle variants.
+    """
+
+    name = "dam-break"
+
+    def __init__(self, solver: Any):
+        p = solver.scene.params
+        missing = [k for k in ("a", "n2", "g") if k not in p]
+        if missing:
+            raise SceneError(f"params.{missing[0]}: required by scene.case = 'dam-break'")
+        if not getattr(solver.problem, "two_phase", False):
+            raise SceneError("scene.case: 'dam-break' needs effects.two_phase = true")
+        self.a, self.n2, self.g = float(p["a"]), float(p["n2"]), float(p["g"])
+        self.lo = np.asarray(solver.domain.bounds[0], dtype=float)
+        self.h = float(solver.domain.min_h())
+        self.comm: MPI.Comm = solver.comm
+
+    def _max(self, v: np.ndarray) -> float:
+        return float(self.comm.allreduce(float(v.max()) if len(v) else -np.inf, op=MPI.MAX))
+
+    def diagnostics(self, solver: Any, t: float) -> dict[str, float]:
+        segs = solver.interfaces().reshape(-1, 2)
+        x0, y0 = self.lo[0], self.lo[1]
+        wall = segs[:, 0] <= x0 + 0.5 * self.h
+        d = {
+            "front": (self._max(segs[:, 0]) - x0) / self.a,
+            "height": (self._max(segs[wall, 1]) - y0) / (self.n2 * self.a),
+        }
+        cloud = solver.cloud()
+        if cloud is not None and "phase" in cloud:
+            x = cloud.x[cloud.field("phase") > 0.5]
+            d["front_particles"] = (self._max(x[:, 0]) - x0) / self.a
+            near = x[x[:, 0] <= x0 + self.h]
+            d["height_particles"] = (self._max(near[:, 1]) - y0) / (self.n2 * self.a)
+        return d
+
+    def metrics(self, history: list[dict[str, float]]) -> dict[str, Any]:
+        f_T = np.sqrt(self.n2 * self.g / self.a)
+        f_tau = np.sqrt(self.g / self.a)
+        out: dict[str, Any] = {}
+        for key in ("front", "front_particles"):
+            if key in history[0]:
+                out[key] = [[h["t"] * f_T, h[key]] for h in history]
+        for key in ("height", "height_particles"):
+            if key in history[0]:
+                out[key] = [[h["t"] * f_tau, h[key]] for h in history]
+        return out
+
+
+_CASES = {
+    "zalesak": ZalesakCase,
+    "gaussian-hill": GaussianHillCase,
+    "dam-break": DamBreakCase,
+}
 
 
 def make_case(name: str, solver: Any) -> Case:

@@ -295,6 +295,24 @@ SCHEMA: dict[str, dict[str, Key]] = {
             doc="PFEM-2: blend of particle velocities towards the mesh velocity per step "
             "(0 = pure increments, FLIP)",
         ),
+        "pic_fraction_light": Key(
+            number(0.0, 1.0),
+            0.0,
+            doc="PFEM-2, two phases: pic_fraction of the light phase (no region, e.g. air)",
+        ),
+        "light_source": Key(
+            choice("full", "gravity"),
+            "full",
+            doc="PFEM-2, two phases: explicit particle source: mixture g - grad(p)/rho for "
+            "all (full), or g for the light phase and g - grad(p)/rho_heavy for the heavy "
+            "one (gravity; for large density ratios)",
+        ),
+        "mass_weighted": Key(
+            boolean,
+            False,
+            doc="PFEM-2, two phases: project the particle velocity to the nodes weighted by "
+            "the particle density (sum rho u / sum rho; for large density ratios)",
+        ),
         "rtol": Key(number(0.0, 1.0, lo_open=True), 1e-8, doc="linear solver tolerance"),
         "quadrature_degree": Key(integer(1, 20), 4, doc="quadrature degree of the flow forms"),
     },

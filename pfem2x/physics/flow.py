@@ -45,6 +45,7 @@ import numpy as np
 import ufl
 
 from pfem2x import compat, fem
+from pfem2x.cases import make_case
 from pfem2x.compat import MPI, PETSc
 from pfem2x.expr import Expression
 from pfem2x.mesh import Domain
@@ -248,6 +249,7 @@ class FlowBase(Solver):
         self._bcs_u, self._bcs_p, self._inflow = self._boundary_conditions()
         self.volume0: dict[str, float] = {}
         self.volume0 = self._phase_volumes()
+        self.case = make_case(scene["scene"]["case"], self)  # scene.case diagnostics
 
     # -- boundaries -----------------------------------------------------------
     def _boundary_conditions(self) -> tuple[list, list, Any]:
@@ -422,6 +424,7 @@ class FlowBase(Solver):
             d[f"volume_change_{name}"] = (v - v0) / v0 if v0 else 0.0
         if self.problem.two_phase:
             d["tip_falling"], d["tip_rising"] = self.tips()
+        d.update(self.case.diagnostics(self, t))
         return d
 
     def metrics(self, history: list[dict[str, float]]) -> dict[str, Any]:
@@ -441,6 +444,7 @@ class FlowBase(Solver):
             out["tip_falling"] = [[h["tau"], h["tip_falling"]] for h in history]
             out["tip_rising"] = [[h["tau"], h["tip_rising"]] for h in history]
         out["tau_factor"] = self.problem.time_factor
+        out.update(self.case.metrics(history))
         return out
 
     # -- pressure projection (shared by the frames) ---------------------------

@@ -51,7 +51,11 @@ Operators per step (``fem.COUNTERS``): 1 matrix assembly (pressure; +1 for
 the viscous matrix when the phases' viscosities differ), 4 vector
 assemblies (lumped mass, pressure right-hand side, correction, source
 :math:`a`), 2 solves (viscous predictor, pressure; 1 without viscosity);
-twice that with ``flow.extra_pass``.
+twice that with ``flow.extra_pass``; +1 vector (the heavy phase's source) with
+``flow.light_source = "gravity"``. Large density ratios (dam break, 1000):
+``flow.light_source = "gravity"``, ``flow.pic_fraction_light = 1`` and
+``flow.mass_weighted = true`` (see :meth:`LagrangianFlow._kick`,
+:meth:`LagrangianFlow._project_velocity`).
 
 Limitations: box sides ``slip`` / ``noslip`` only (inflow / outflow need
 particle seeding and deletion at the boundary, not wired yet); 2D.
@@ -104,6 +108,9 @@ class LagrangianFlow(FlowBase):
         mesh = domain.mesh
         sc = PETSc.ScalarType
         self.pic_fraction = float(fl["pic_fraction"])
+        self.pic_fraction_light = float(fl["pic_fraction_light"]) if pr.two_phase else 0.0
+        self.mass_weighted = bool(fl["mass_weighted"]) and pr.two_phase
+        self.light_gravity_only = pr.two_phase and fl["light_source"] == "gravity"
         self.extra_pass = bool(fl["extra_pass"])
         self.dt_c = compat.dolfinx.fem.Constant(mesh, sc(1.0))
 
@@ -122,7 +129,12 @@ class LagrangianFlow(FlowBase):
         fields: dict[str, Any] = {"u": (self.gdim,)}
         if pr.two_phase:
             fields["phase"] = ()
+        if self.mass_weighted:
+            fields["_mom"] = (self.gdim + 1,)  # work field: (rho u, rho) of each particle
         self.cloud_ = P.Cloud(domain, fields)
+        # nodal (sum w rho u, sum w rho) / sum w of the mass-weighted projection
+        self._mom_nodes = np.zeros((len(self.coords), self.gdim + 1))
+        self._mom_nodes[:, -1] = 1.0
         P.seed_cells(self.cloud_, meth["particles_per_cell"], seed=meth["seed"])
         P.interpolate(self.cloud_, "u", self.u)
         if pr.two_phase:
@@ -151,6 +163,15 @@ class LagrangianFlow(FlowBase):
         self.m_solver: fem.LinearSolver | None = None
         self.L_f = compat.form(ufl.dot(self.rho * g - ufl.grad(self.p), w) * dx)
         self.b_f = compat.create_vector(self.L_f)
+        if self.light_gravity_only:
+            # heavy particles: a_heavy = g - M^-1 int grad(p).w / rho_heavy (lumped M)
+            self.force_heavy = compat.dolfinx.fem.Function(self.V)
+            self.L_fh = compat.form(ufl.dot(g - ufl.grad(self.p) / pr.phases[0][1], w) * dx)
+            self.b_fh = compat.create_vector(self.L_fh)
+            self.b_m1 = compat.create_vector(self.L_mass)
+            fem.assemble_vector(
+                compat.form(ufl.dot(w, ufl.as_vector([1.0] * self.gdim)) * dx), self.b_m1
+            )
         self.b_m = compat.create_vector(self.L_mass)
         self._diag = compat.create_vector(self.L_mass)
 
@@ -208,14 +229,17 @@ class LagrangianFlow(FlowBase):
         n = len(self.b_f.array_r)
         self.force.x.array[:n] = self.b_f.array_r / self.b_mass.array_r
         self.force.x.scatter_forward()
+        if self.light_gravity_only:
+            fem.assemble_vector(self.L_fh, self.b_fh)
+            self.force_heavy.x.array[:n] = self.b_fh.array_r / self.b_m1.array_r
+            self.force_heavy.x.scatter_forward()
 
     # -- the step -----------------------------------------------------------------
     def _move(self, dt: float, theta: float) -> None:
         """Step 1: X-IVAS move along ``u^n`` (+ ``theta``: ``u^{n+1}``) with the source."""
         c = self.cloud_
         meth = self.scene["method"]
-        up = c.field("u")
-        up += 0.5 * dt * P.evaluate(c, self.force)
+        self._kick(0.5 * dt)
         if theta > 0.0:
             P.advect(
                 c, self._u_old, dt, velocity_next=self.u, theta=theta,
@@ -223,8 +247,31 @@ class LagrangianFlow(FlowBase):
             )  # fmt: skip
         else:
             P.advect(c, self.u, dt, courant=meth["substep_courant"])
-        up = c.field("u")  # storage may have been reordered / migrated
-        up += 0.5 * dt * P.evaluate(c, self.force)
+        self._kick(0.5 * dt)  # storage may have been reordered / migrated in between
+
+    def _kick(self, h: float) -> None:
+        r"""``u_p += h a(x_p)``, the explicit source of step 1.
+
+        ``flow.light_source = "full"``: :math:`a = M_\rho^{-1}\int(\rho g - \nabla p^n)\cdot w`
+        for every particle. ``"gravity"`` (large density ratios): particles of
+        the light phase get :math:`g` only, those of the heavy phase
+        :math:`a_h = g - M^{-1}\int\nabla p^n\cdot w/\rho_{heavy}`. The light
+        phase's pressure acceleration is of order :math:`g\rho_{heavy}/\rho_{light}`
+        in the cells next to the interface, where the P1 pressure cannot follow
+        the kink of the hydrostatic gradient; as an explicit source it throws
+        the air (and drops flying in it, with the mixture's nodal mass) around
+        (dam break, ratio 1000). The pressure step then supplies the light
+        phase's whole pressure acceleration each step, and heavy drops in the
+        light phase fall freely.
+        """
+        c = self.cloud_
+        if self.light_gravity_only:
+            f = P.evaluate(c, self.force_heavy)
+            f[c.field("phase") < 0.5] = self.problem.gravity
+        else:
+            f = P.evaluate(c, self.force)
+        up = c.field("u")
+        up += h * f
 
     def _mesh_step(self, dt: float) -> None:
         """Step 3: viscous predictor, pressure increment, correction; new source ``a``."""
@@ -272,7 +319,7 @@ class LagrangianFlow(FlowBase):
         c = self.cloud_
         t0 = time.perf_counter()
         self._move(dt, theta)
-        P.project(c, "u", self.u_hat, method=self.scene["method"]["projection"], empty="neighbours")
+        self._project_velocity()
         self._update_phase_fields()
         self.timings["particles"] += time.perf_counter() - t0
         self._mesh_step(dt)
@@ -280,11 +327,43 @@ class LagrangianFlow(FlowBase):
         self.du.x.array[:] = self.u.x.array - self.u_hat.x.array
         P.add_increment(c, "u", self.du)
         a = self.pic_fraction
-        if a > 0.0:
+        al = self.pic_fraction_light
+        if a > 0.0 or al > 0.0:
             up = c.field("u")
-            up *= 1.0 - a
-            up += a * P.evaluate(c, self.u)
+            alpha = np.full(c.n, a)
+            if al > 0.0:
+                alpha[c.field("phase") < 0.5] = al
+            up *= 1.0 - alpha[:, None]
+            up += alpha[:, None] * P.evaluate(c, self.u)
         self.timings["particles"] += time.perf_counter() - t1
+
+    def _project_velocity(self) -> None:
+        """Step 2 for ``u``: plain projection, or mass-weighted (``flow.mass_weighted``).
+
+        Mass-weighted: ``u_i = sum w_p rho_p u_p / sum w_p rho_p`` (``"average"``
+        weights ``w_p = N_i(x_p)``; a linear fit of the step in ``rho`` could
+        leave ``[rho_light, rho_heavy]``). At a node of the interface the heavy
+        phase's velocity then dominates as its mass does in the lumped
+        ``rho``-mass, instead of an equal share of the light phase's
+        velocities, whose divergence the pressure step would otherwise correct
+        by moving the light phase.
+        """
+        c = self.cloud_
+        meth = self.scene["method"]["projection"]
+        if not self.mass_weighted:
+            P.project(c, "u", self.u_hat, method=meth, empty="neighbours")
+            return
+        g = self.gdim
+        (_, r1, _, _), (_, r2, _, _) = self.problem.phases
+        m = c.field2d("_mom")
+        rho_p = r2 + (r1 - r2) * c.field("phase")
+        m[:, :g] = rho_p[:, None] * c.field("u")
+        m[:, g] = rho_p
+        P.project(c, "_mom", self._mom_nodes, method="average", empty="neighbours")
+        mn = self._mom_nodes
+        ok = mn[:, g] > 0.0
+        uh = self.u_hat.x.array.reshape(-1, g)
+        uh[ok] = mn[ok, :g] / mn[ok, g:]
 
     def step(self, t: float, dt: float) -> None:
         self.dt_c.value = dt
