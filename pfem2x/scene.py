@@ -317,6 +317,53 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "quadrature_degree": Key(integer(1, 20), 4, doc="quadrature degree of the flow forms"),
     },
 }
+#: Meanings of keys whose ``Key`` has no doc line (kept here to keep the schema readable).
+_DOCS = {
+    "mesh.kind": "structured interval / rectangle (triangles) / box (tetrahedra), or a gmsh file",
+    "mesh.diagonal": "how rectangle cells are split into triangles",
+    "effects.advection": "transport: V.grad T (needs transport.velocity)",
+    "effects.diffusion": "transport: div(kappa grad T)",
+    "effects.source": "transport: the source q",
+    "effects.reaction": "transport: the reaction term -c T",
+    "effects.gravity": "flow: the body force flow.gravity",
+    "effects.viscosity": "flow: viscous stresses",
+    "effects.two_phase": "flow: two phases with [phases.*]",
+    "time.t_end": "end time (solver units)",
+    "time.dt": "fixed time step (exactly one of dt and courant)",
+    "time.courant": "time step from Co = max|V| dt / H, H the shortest cell edge",
+    "time.max_steps": "refuse runs with more steps",
+    "method.frame": "lagrangian = PFEM-2 particles; eulerian = FEM baseline; characteristic = "
+    "characteristic Galerkin (one particle per node)",
+    "method.particles_per_cell": "particles seeded per cell (lagrangian)",
+    "method.min_particles_per_cell": "add particles in cells with fewer (0: no control)",
+    "method.max_particles_per_cell": "remove particles from cells with more (0: no control)",
+    "method.projection": "particles -> mesh: linear-exact weighted least squares, or the "
+    "paper's shape-function average",
+    "method.substep_courant": "cells a particle may cross per X-IVAS sub-step",
+    "method.theta": "theta-method weight (eulerian; 0 explicit, 1/2 Crank-Nicolson, 1 implicit)",
+    "method.supg": "SUPG stabilisation of convection (eulerian)",
+    "method.preconditioner": "linear solver preconditioner (auto: hypre if PETSc has it, "
+    "else gamg; ILU for non-symmetric systems)",
+    "method.seed": "random seed of particle seeding (results do not depend on the rank count)",
+    "output.fields": "write fields.xdmf",
+    "output.particles": "write particles.pvd (lagrangian frames)",
+    "output.png": "write PNG snapshots",
+    "output.csv": "write diagnostics.csv",
+    "transport.field": "name of the transported field",
+    "transport.velocity": "velocity components (expressions of x, y, z, t)",
+    "transport.kappa": "diffusivity (effects.diffusion)",
+    "transport.source": "source q (effects.source)",
+    "transport.reaction": "reaction coefficient c (effects.reaction)",
+    "transport.initial": "initial field",
+    "transport.exact": "exact solution: enables l2_error and l2_error_time_avg",
+}
+for _dotted, _doc in _DOCS.items():
+    _sec, _key = _dotted.split(".")
+    if not SCHEMA[_sec][_key].doc:
+        SCHEMA[_sec][_key] = Key(
+            SCHEMA[_sec][_key].check, SCHEMA[_sec][_key].default, SCHEMA[_sec][_key].required, _doc
+        )
+
 #: Sections whose keys are free-form.
 FREE_SECTIONS = {"params", "variants", "phases", "case"}
 
@@ -728,3 +775,72 @@ def dump_toml(data: Mapping[str, Any]) -> str:
 
     table("", data)
     return "\n".join(lines) + "\n"
+
+
+# --------------------------------------------------------------------------
+# Reference documentation (docs/SCENES.md is generated from the schema)
+# --------------------------------------------------------------------------
+def _kind(check: Callable[[str, Any], Any]) -> str:
+    base = getattr(check, "__qualname__", "").split(".")[0]
+    cells = [c.cell_contents for c in (getattr(check, "__closure__", None) or ())]
+    if base == "choice":
+        opts = next((c for c in cells if isinstance(c, tuple)), ())
+        return " \\| ".join(f"`{o}`" for o in opts)
+    if base == "list_of":
+        inner = next((c for c in cells if callable(c)), None)
+        return f"list of {_kind(inner)}" if inner else "list"
+    names = {
+        "number": "number",
+        "integer": "integer",
+        "boolean": "boolean",
+        "string": "string",
+        "expr_text": "expression or number",
+        "bounds_check": "[lo, hi] corners",
+        "cells_check": "integer or list of integers",
+        "times_check": "list of times",
+        "strings_check": "list of strings",
+    }
+    return names.get(base, base or "value")
+
+
+def schema_markdown() -> str:
+    """Every scene key with its type, default and meaning, as markdown (docs/SCENES.md)."""
+    lines = [
+        "# Scene keys",
+        "",
+        "Generated from `pfem2x/scene.py` by `python -m pfem2x.scene > docs/SCENES.md`",
+        "(a test checks that this file is current). Expressions: see README.md.",
+        "",
+    ]
+    for sec, keys in SCHEMA.items():
+        lines += [f"## [{sec}]", "", "| key | type | default | meaning |", "|---|---|---|---|"]
+        for k, spec in keys.items():
+            default = (
+                "**required**"
+                if spec.required
+                else ("" if spec.default is None else f"`{spec.default!r}`")
+            )
+            doc = spec.doc.replace("|", "\\|")
+            lines.append(f"| `{sec}.{k}` | {_kind(spec.check)} | {default} | {doc} |")
+        lines.append("")
+    lines += [
+        "## [phases.NAME] (flow)",
+        "",
+        "| key | type | default | meaning |",
+        "|---|---|---|---|",
+        "| `density` | number > 0 | **required** | the phase's density |",
+        "| `viscosity` | number >= 0 | `0.0` | dynamic viscosity |",
+        "| `region` | expression | | where the phase is at t = 0 (truthy); exactly one of two |",
+        "",
+        "## [params], [variants.NAME]",
+        "",
+        "`[params]`: named numbers usable in every expression (identifiers, not `x y z t`, not",
+        "a function or constant name). `[variants.NAME]`: dotted keys applied by",
+        "`--variant NAME` before any `--set`.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    print(schema_markdown(), end="")
