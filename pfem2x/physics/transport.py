@@ -75,6 +75,16 @@ class TransportProblem:
             e.constant or "t" not in e.names for e in self.velocity
         )
 
+    def active_terms(self) -> list[str]:
+        """``["mass", ...]`` plus every effect whose term this problem has."""
+        pairs = (
+            ("advection", self.velocity),
+            ("diffusion", self.kappa),
+            ("source", self.source),
+            ("reaction", self.reaction),
+        )
+        return ["mass"] + [eff for eff, term in pairs if term is not None]
+
     def velocity_at(self, x: np.ndarray, t: float) -> np.ndarray:
         """Velocity at points ``x`` (n, ≥gdim) and time ``t``: shape (n, gdim)."""
         if self.velocity is None:
@@ -523,15 +533,7 @@ class CharacteristicTransport(TransportBase):
         p = self.problem
         self.theta = float(scene["method"]["theta"])
         self.source_path = scene["method"]["source_integration"] == "path"
-        self.terms: list[str] = ["mass"]
-        for eff, attr in (
-            ("advection", "velocity"),
-            ("diffusion", "kappa"),
-            ("source", "source"),
-            ("reaction", "reaction"),
-        ):
-            if getattr(p, attr) is not None:
-                self.terms.append(eff)
+        self.terms: list[str] = p.active_terms()
         gdim = domain.gdim
         self.nodes = np.ascontiguousarray(self.coords[: self.n_owned_dofs, :gdim])
         lo, hi = np.asarray(domain.bounds, dtype=float).reshape(2, -1)[:, :gdim]
@@ -679,15 +681,7 @@ class LagrangianTransport(TransportBase):
         meth = scene["method"]
         self.theta = float(meth["theta"])
         self.source_path = meth["source_integration"] == "path"
-        self.terms: list[str] = ["mass"]
-        for eff, attr in (
-            ("advection", "velocity"),
-            ("diffusion", "kappa"),
-            ("source", "source"),
-            ("reaction", "reaction"),
-        ):
-            if getattr(p, attr) is not None:
-                self.terms.append(eff)
+        self.terms: list[str] = p.active_terms()
         f = p.field
         self.cloud_ = P.Cloud(domain, {f: ()})
         P.seed_cells(self.cloud_, meth["particles_per_cell"], seed=meth["seed"])
