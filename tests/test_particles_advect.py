@@ -177,3 +177,41 @@ def test_source_integrated_along_path(comm, nodal):
         expect = cl["x0"][:, 0] * dt + dt**2 / 2 + (t0 + dt) ** 2 / 2 - t0**2 / 2
     assert np.allclose(cl["T"], expect, atol=1e-10)
     assert np.allclose(cl.x[:, 0], cl["x0"][:, 0] + dt, atol=1e-12)
+
+
+@pytest.mark.mpi
+def test_theta_stage_without_contraction_terminates(comm):
+    """Eq. (2.10) with theta*dt*|grad V| = 3: plain fixed-point iteration diverges.
+
+    V^{n+1}(x) = -3 (x - c) around the domain centre, V^n = 0, theta = dt = 1:
+    the exact answer is x = (x0 + 3 c) / 4. Undamped iterates oscillate with
+    growing amplitude; under MPI they crossed the partition boundary and the
+    particles were handed back and forth between the ranks for ever (seen as a
+    hang of 2-rank Rayleigh-Taylor runs). Damped iteration converges.
+    """
+    import signal
+
+    def _hang(*_):
+        raise TimeoutError("advect did not return: particles passed between ranks for ever")
+
+    old = signal.signal(signal.SIGALRM, _hang)
+    signal.alarm(120)
+    try:
+        d = build_mesh(comm, "rectangle", [[0.0, 0.0], [1.0, 1.0]], [16, 16])
+        cl = Cloud(d, {"x0": (2,)})
+        seed_cells(cl, 6, seed=5)
+        cl["x0"] = cl.x
+        n0 = cl.global_count()
+        V = compat.function_space(d.mesh, 1, (2,))
+        un = dolfinx.fem.Function(V)
+        un1 = dolfinx.fem.Function(V)
+        un1.interpolate(lambda x: np.stack([-3.0 * (x[0] - 0.5), -3.0 * (x[1] - 0.5)]))
+        advect(cl, un, 1.0, velocity_next=un1, theta=1.0, substeps=1)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+    assert cl.global_count() == n0
+    assert cl.check()
+    exact = (cl["x0"] + 3.0 * 0.5) / 4.0
+    err = np.abs(cl.x - exact).max() if cl.n else 0.0
+    assert comm.allreduce(err, op=MPI.MAX) < 1e-9

@@ -241,35 +241,100 @@ def clamp_into(x, cells, origin, inv, coords):
             x[p, j] = v
 
 
-@njit(cache=True, error_model="numpy")
-def theta_stage(xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc):
-    """Fixed point of eq. (2.10): ``x = y + theta*dt*V^{n+1}(x)`` starting at ``xp`` in ``c``.
+THETA_MAXIT = 30  # fixed-point iterations of eq. (2.10) per particle and step, over all ranks
 
-    ``y`` is shifted together with ``xp`` when the walk wraps. Returns
-    ``(cell, status)``.
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _newton_dir(r, c, un1, dofs, inv, a, out):
+    """``out = (I - a G)^{-1} r`` with ``G`` the (constant) gradient of ``un1`` in cell ``c``.
+
+    Returns False (``out = r``) when the matrix is near singular.
+    """
+    tdim = inv.shape[1]
+    gdim = inv.shape[2]
+    m = np.zeros((3, 3))
+    for j in range(gdim):
+        m[j, j] = 1.0
+        for k in range(gdim):
+            g = 0.0
+            for i in range(tdim + 1):
+                g += un1[dofs[c, i], j] * _facet_grad(inv, c, i, k, tdim)
+            m[j, k] -= a * g
+    if gdim == 1:
+        det = m[0, 0]
+    elif gdim == 2:
+        det = m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]
+    else:
+        det = (
+            m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
+            - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
+            + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0])
+        )
+    if tdim != gdim or abs(det) < 1e-6:
+        for j in range(gdim):
+            out[j] = r[j]
+        return False
+    if gdim == 1:
+        out[0] = r[0] / det
+    elif gdim == 2:
+        out[0] = (m[1, 1] * r[0] - m[0, 1] * r[1]) / det
+        out[1] = (m[0, 0] * r[1] - m[1, 0] * r[0]) / det
+    else:
+        for j in range(3):  # Cramer's rule, column j replaced by r
+            mm = m.copy()
+            for k in range(3):
+                mm[k, j] = r[k]
+            out[j] = (
+                mm[0, 0] * (mm[1, 1] * mm[2, 2] - mm[1, 2] * mm[2, 1])
+                - mm[0, 1] * (mm[1, 0] * mm[2, 2] - mm[1, 2] * mm[2, 0])
+                + mm[0, 2] * (mm[1, 0] * mm[2, 1] - mm[1, 1] * mm[2, 0])
+            ) / det
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def theta_stage(xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc, it0):
+    """Solve eq. (2.10), ``x = y + theta*dt*V^{n+1}(x)``, starting at ``xp`` in ``c``.
+
+    Newton iterations with the cell gradient of ``V^{n+1}`` (exact in one
+    step while ``x`` stays in a cell, where ``V^{n+1}`` is linear), so the
+    solve also converges when ``theta*dt*|grad V|`` exceeds 1 and plain
+    fixed-point iteration diverges. The iteration is stateless, so it can
+    continue on another rank; ``it0`` iterations were already spent on this
+    particle (the count travels with it and caps the total, so a particle
+    cannot be passed between ranks for ever). ``y`` is shifted together with
+    ``xp`` when the walk wraps. Returns ``(cell, status, iterations)``; after
+    ``THETA_MAXIT`` iterations the last iterate is kept.
     """
     gdim = un1.shape[1]
     v = np.empty(3)
+    r = np.empty(3)
+    dx = np.empty(3)
     xn = np.empty(3)
-    for _ in range(30):
+    it = it0
+    a = theta * dt
+    while it < THETA_MAXIT:
         _bary(xp, c, origin, inv, lam)
         _eval_vec(un1, dofs, c, lam, v, 1.0, False)
+        for j in range(gdim):
+            r[j] = y[j] + a * v[j] - xp[j]
+        _newton_dir(r, c, un1, dofs, inv, a, dx)
         d2 = 0.0
         for j in range(gdim):
-            xn[j] = y[j] + theta * dt * v[j]
-            d2 += (xn[j] - xp[j]) ** 2
-        for j in range(gdim):
+            d2 += dx[j] ** 2
+            xn[j] = xp[j] + dx[j]
             sh[j] = 0.0
+        it += 1
         c2, s = walk(xn, c, origin, inv, nbr, pshift, period, lam, sh, 1000)
         for j in range(gdim):
             xp[j] = xn[j]
             y[j] += sh[j]
         if s != ST_OK:
-            return c2, s
+            return c2, s, it
         c = c2
         if d2 <= (1e-12 * hc[c]) ** 2:
             break
-    return c, ST_OK
+    return c, ST_OK, it
 
 
 @njit(cache=True, error_model="numpy")
@@ -425,9 +490,11 @@ def _advect_p1_any(
         if st == ST_OK and stage[p] == STAGE_THETA:
             for j in range(gdim):
                 y[j] = aux[p, j]
-            c, st = theta_stage(
-                xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc
+            its0 = int(tl)
+            c, st, its = theta_stage(
+                xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc, its0
             )
+            tl = float(its)  # in stage 1, t_left counts fixed-point iterations
             for j in range(gdim):
                 aux[p, j] = y[j]
             if st == ST_OK:
@@ -728,9 +795,11 @@ def _advect_p1_tri(
             xp[1] = p1
             y[0] = aux[p, 0]
             y[1] = aux[p, 1]
-            c, st = theta_stage(
-                xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc
+            its0 = int(tl)
+            c, st, its = theta_stage(
+                xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc, its0
             )
+            tl = float(its)  # in stage 1, t_left counts fixed-point iterations
             aux[p, 0] = y[0]
             aux[p, 1] = y[1]
             p0 = xp[0]
