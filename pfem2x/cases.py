@@ -11,6 +11,8 @@
 - ``dam-break`` (flow): surge front and residual column height of a
   collapsing column in Martin & Moyce's (1952) units, with their data
   (:data:`MARTIN_MOYCE_FRONT`, :data:`MARTIN_MOYCE_HEIGHT`).
+- ``rayleigh-taylor`` (flow): tip errors against interFoam's tips
+  (:data:`INTERFOAM_RT_TIPS`), for the study plots.
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ __all__ = [
     "MARTIN_MOYCE_HEIGHT",
     "Case",
     "DamBreakCase",
+    "INTERFOAM_RT_TIPS",
+    "RayleighTaylorCase",
     "make_case",
     "subcell_points",
 ]
@@ -77,6 +81,14 @@ def subcell_points(tdim: int, k: int) -> np.ndarray:
         a = np.array(pts)
         return np.concatenate([1.0 - a.sum(axis=1, keepdims=True), a], axis=1)
     raise ValueError(f"sub-cell quadrature is implemented for tdim 1 and 2, got {tdim}")
+
+
+#: Rayleigh-Taylor reference (issue 5; ``shared/peers/interfoam-rt``): OpenFOAM
+#: v1912 interFoam, 100 x 400 cells, dt = 0.001, A = 1/2, Re = 1000, g = d = 1.
+#: Rows: Tryggvason time tau, falling (spike) tip y, rising (bubble) tip y.
+INTERFOAM_RT_TIPS = np.array(
+    [[1.0, -0.366, 0.297], [1.5, -0.610, 0.427], [2.0, -0.821, 0.543], [2.5, -1.012, 0.648]]
+)
 
 
 class Case:
@@ -266,7 +278,47 @@ class DamBreakCase(Case):
         return out
 
 
+class RayleighTaylorCase(Case):
+    """Tip errors of the Rayleigh–Taylor scene against :data:`INTERFOAM_RT_TIPS`.
+
+    Metrics (when the scene keeps the reference's data: ``params`` ``d = 1``,
+    ``g = 1``, ``A = 0.5``, ``mu = 1e-3``; otherwise none): ``tip_error`` =
+    max over the reference times reached and both tips of ``|y - y_ref|``
+    (tips interpolated linearly in ``tau``), ``tip_error_tau2`` = the same up
+    to ``tau = 2``, where interFoam itself is converged in its time step to
+    about 0.01 d (beyond, its spike still moves 0.05 d between dt = 0.0025
+    and 0.001). Runs that end before ``tau = 1`` get neither.
+    """
+
+    name = "rayleigh-taylor"
+    REFERENCE = {"d": 1.0, "g": 1.0, "A": 0.5, "mu": 1e-3}
+
+    def __init__(self, solver: Any):
+        p = solver.scene.params
+        self.same = all(
+            k in p and abs(float(p[k]) - v) <= 1e-12 * v for k, v in self.REFERENCE.items()
+        )
+
+    def metrics(self, history: list[dict[str, float]]) -> dict[str, Any]:
+        if not self.same or not history or "tip_falling" not in history[0]:
+            return {}
+        tau = np.array([h["tau"] for h in history])
+        out: dict[str, Any] = {}
+        for key, tmax in (("tip_error", 2.5), ("tip_error_tau2", 2.0)):
+            errs = []
+            for t, yf, yr in INTERFOAM_RT_TIPS:
+                if t > tmax or t > tau[-1] + 1e-6:
+                    continue
+                for name, ref in (("tip_falling", yf), ("tip_rising", yr)):
+                    y = np.interp(t, tau, [h[name] for h in history])
+                    errs.append(abs(y - ref))
+            if errs:  # none before tau = 1
+                out[key] = float(max(errs))
+        return out
+
+
 _CASES = {
+    "rayleigh-taylor": RayleighTaylorCase,
     "zalesak": ZalesakCase,
     "gaussian-hill": GaussianHillCase,
     "dam-break": DamBreakCase,

@@ -1,4 +1,4 @@
-"""Case diagnostics of the paper's scalar scenes, checked against closed forms."""
+"""Case diagnostics of the paper's scenes, checked against closed forms and synthetic histories."""
 
 import math
 
@@ -55,3 +55,33 @@ def test_gaussian_hill_reference_peak_follows_heat_equation():
     assert peaks[0] > peaks[1] > peaks[2] > 0.5
     d = solver.diagnostics(0.0)
     assert d["peak"] == pytest.approx(1.0)  # x0 = (1/6, 1/6) is a mesh node of the 12x12 mesh
+
+
+def test_rayleigh_taylor_tip_errors():
+    """metrics.tip_error(_tau2): max tip distance to interFoam at the reference times."""
+    from types import SimpleNamespace
+
+    from pfem2x.cases import INTERFOAM_RT_TIPS, RayleighTaylorCase
+
+    params = {"d": 1.0, "g": 1.0, "A": 0.5, "mu": 1e-3}
+    solver = SimpleNamespace(scene=SimpleNamespace(params=params))
+    tau = np.linspace(0.0, 2.5, 11)
+    ref_f = np.interp(tau, INTERFOAM_RT_TIPS[:, 0], INTERFOAM_RT_TIPS[:, 1])
+    ref_r = np.interp(tau, INTERFOAM_RT_TIPS[:, 0], INTERFOAM_RT_TIPS[:, 2])
+    off = np.where(tau > 2.0, 0.05, 0.01)  # worse after tau = 2
+    hist = [
+        {"tau": t, "tip_falling": f - o, "tip_rising": r + 0.5 * o}
+        for t, f, r, o in zip(tau, ref_f, ref_r, off, strict=True)
+    ]
+    m = RayleighTaylorCase(solver).metrics(hist)
+    assert m["tip_error"] == pytest.approx(0.05)
+    assert m["tip_error_tau2"] == pytest.approx(0.01)
+    # a run stopped at tau = 1.2 is measured at tau = 1 only
+    m = RayleighTaylorCase(solver).metrics([h for h in hist if h["tau"] <= 1.2])
+    assert m["tip_error"] == pytest.approx(0.01)
+    # other physical data: the reference does not apply
+    solver.scene.params = dict(params, A=0.2)
+    assert RayleighTaylorCase(solver).metrics(hist) == {}
+    # ends before the first reference time: no tip metrics
+    solver.scene.params = params
+    assert RayleighTaylorCase(solver).metrics(hist[:3]) == {}

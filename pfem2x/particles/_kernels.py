@@ -241,35 +241,36 @@ def clamp_into(x, cells, origin, inv, coords):
             x[p, j] = v
 
 
+WITHIN_MARGIN = 1.0  # new particle, cell fit: may leave the samples' range by this x range
+FIT_MAX_EXTRAP = 6.0  # new particle: fits only up to this many Mahalanobis radii from the samples
 THETA_MAXIT = 30  # fixed-point iterations of eq. (2.10) per particle and step, over all ranks
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _newton_dir(r, c, un1, dofs, inv, a, out):
+def _newton_dir(r, c, un1, dofs, inv, a, out, m):
     """``out = (I - a G)^{-1} r`` with ``G`` the (constant) gradient of ``un1`` in cell ``c``.
 
-    Returns False (``out = r``) when the matrix is near singular.
+    ``m`` is ``(3, 3)`` scratch. Returns False (``out = r``) when the matrix is
+    near singular.
     """
     tdim = inv.shape[1]
     gdim = inv.shape[2]
-    m = np.zeros((3, 3))
     for j in range(gdim):
-        m[j, j] = 1.0
         for k in range(gdim):
             g = 0.0
             for i in range(tdim + 1):
                 g += un1[dofs[c, i], j] * _facet_grad(inv, c, i, k, tdim)
-            m[j, k] -= a * g
+            m[j, k] = -a * g
+        m[j, j] += 1.0
     if gdim == 1:
         det = m[0, 0]
     elif gdim == 2:
         det = m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]
     else:
-        det = (
-            m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
-            - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
-            + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0])
-        )
+        c00 = m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]
+        c01 = m[1, 2] * m[2, 0] - m[1, 0] * m[2, 2]
+        c02 = m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]
+        det = m[0, 0] * c00 + m[0, 1] * c01 + m[0, 2] * c02
     if tdim != gdim or abs(det) < 1e-6:
         for j in range(gdim):
             out[j] = r[j]
@@ -279,38 +280,41 @@ def _newton_dir(r, c, un1, dofs, inv, a, out):
     elif gdim == 2:
         out[0] = (m[1, 1] * r[0] - m[0, 1] * r[1]) / det
         out[1] = (m[0, 0] * r[1] - m[1, 0] * r[0]) / det
-    else:
-        for j in range(3):  # Cramer's rule, column j replaced by r
-            mm = m.copy()
-            for k in range(3):
-                mm[k, j] = r[k]
-            out[j] = (
-                mm[0, 0] * (mm[1, 1] * mm[2, 2] - mm[1, 2] * mm[2, 1])
-                - mm[0, 1] * (mm[1, 0] * mm[2, 2] - mm[1, 2] * mm[2, 0])
-                + mm[0, 2] * (mm[1, 0] * mm[2, 1] - mm[1, 1] * mm[2, 0])
-            ) / det
+    else:  # adjugate (transposed cofactors) / det
+        c10 = m[0, 2] * m[2, 1] - m[0, 1] * m[2, 2]
+        c11 = m[0, 0] * m[2, 2] - m[0, 2] * m[2, 0]
+        c12 = m[0, 1] * m[2, 0] - m[0, 0] * m[2, 1]
+        c20 = m[0, 1] * m[1, 2] - m[0, 2] * m[1, 1]
+        c21 = m[0, 2] * m[1, 0] - m[0, 0] * m[1, 2]
+        c22 = m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]
+        out[0] = (c00 * r[0] + c10 * r[1] + c20 * r[2]) / det
+        out[1] = (c01 * r[0] + c11 * r[1] + c21 * r[2]) / det
+        out[2] = (c02 * r[0] + c12 * r[1] + c22 * r[2]) / det
     return True
 
 
 @njit(cache=True, error_model="numpy")
-def theta_stage(xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc, it0):
+def theta_stage(
+    xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc, it0, w
+):
     """Solve eq. (2.10), ``x = y + theta*dt*V^{n+1}(x)``, starting at ``xp`` in ``c``.
 
-    Newton iterations with the cell gradient of ``V^{n+1}`` (exact in one
-    step while ``x`` stays in a cell, where ``V^{n+1}`` is linear), so the
-    solve also converges when ``theta*dt*|grad V|`` exceeds 1 and plain
-    fixed-point iteration diverges. The iteration is stateless, so it can
-    continue on another rank; ``it0`` iterations were already spent on this
-    particle (the count travels with it and caps the total, so a particle
-    cannot be passed between ranks for ever). ``y`` is shifted together with
-    ``xp`` when the walk wraps. Returns ``(cell, status, iterations)``; after
-    ``THETA_MAXIT`` iterations the last iterate is kept.
+    Newton iterations with the cell gradient of ``V^{n+1}``: exact in one
+    step when the new point stays in the cell (``V^{n+1}`` is linear there),
+    so the solve also converges when ``theta*dt*|grad V|`` exceeds 1 and
+    plain fixed-point iteration diverges. The iteration is stateless, so it
+    can continue on another rank; ``it0`` iterations were already spent on
+    this particle (the count travels with it and caps the total, so a
+    particle cannot be passed between ranks for ever). ``y`` is shifted
+    together with ``xp`` when the walk wraps. ``w`` is ``(6, 3)`` scratch.
+    Returns ``(cell, status, iterations)``; after ``THETA_MAXIT`` iterations
+    the last iterate is kept.
     """
     gdim = un1.shape[1]
-    v = np.empty(3)
-    r = np.empty(3)
-    dx = np.empty(3)
-    xn = np.empty(3)
+    v = w[0]
+    r = w[1]
+    dx = w[2]
+    m = w[3:6]
     it = it0
     a = theta * dt
     while it < THETA_MAXIT:
@@ -318,21 +322,21 @@ def theta_stage(xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period
         _eval_vec(un1, dofs, c, lam, v, 1.0, False)
         for j in range(gdim):
             r[j] = y[j] + a * v[j] - xp[j]
-        _newton_dir(r, c, un1, dofs, inv, a, dx)
+        exact = _newton_dir(r, c, un1, dofs, inv, a, dx, m)
         d2 = 0.0
         for j in range(gdim):
             d2 += dx[j] ** 2
-            xn[j] = xp[j] + dx[j]
+            xp[j] += dx[j]
             sh[j] = 0.0
         it += 1
-        c2, s = walk(xn, c, origin, inv, nbr, pshift, period, lam, sh, 1000)
+        c2, s = walk(xp, c, origin, inv, nbr, pshift, period, lam, sh, 1000)
         for j in range(gdim):
-            xp[j] = xn[j]
             y[j] += sh[j]
         if s != ST_OK:
             return c2, s, it
+        same = c2 == c
         c = c2
-        if d2 <= (1e-12 * hc[c]) ** 2:
+        if (exact and same) or d2 <= (1e-12 * hc[c]) ** 2:
             break
     return c, ST_OK, it
 
@@ -385,6 +389,7 @@ def _advect_p1_any(
     v2 = np.empty(3)
     sh = np.zeros(3)
     y = np.empty(3)
+    wth = np.empty((6, 3))
     nsteps = 0
     for p in range(n):
         if stage[p] == STAGE_DONE:
@@ -492,8 +497,9 @@ def _advect_p1_any(
                 y[j] = aux[p, j]
             its0 = int(tl)
             c, st, its = theta_stage(
-                xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc, its0
-            )
+                xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc,
+                its0, wth,
+            )  # fmt: skip
             tl = float(its)  # in stage 1, t_left counts fixed-point iterations
             for j in range(gdim):
                 aux[p, j] = y[j]
@@ -664,6 +670,7 @@ def _advect_p1_tri(
     lam = np.empty(4)
     sh = np.zeros(3)
     y = np.empty(3)
+    wth = np.empty((6, 3))
     nsteps = 0
     for p in range(n):
         if stage[p] == STAGE_DONE:
@@ -797,8 +804,9 @@ def _advect_p1_tri(
             y[1] = aux[p, 1]
             its0 = int(tl)
             c, st, its = theta_stage(
-                xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc, its0
-            )
+                xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc,
+                its0, wth,
+            )  # fmt: skip
             tl = float(its)  # in stage 1, t_left counts fixed-point iterations
             aux[p, 0] = y[0]
             aux[p, 1] = y[1]
@@ -1102,6 +1110,11 @@ def _fit_eval(x, vals, idx, nidx, pt, out, gdim):
     """Weighted-free linear least-squares fit of ``vals[idx]`` evaluated at ``pt``.
 
     Returns ``True`` when the fit is well posed; ``out`` gets the values.
+    Ill posed: fewer than ``gdim + 1`` points, a nearly degenerate spread, or
+    ``pt`` farther than ``FIT_MAX_EXTRAP`` Mahalanobis radii from the
+    points' centroid (the fit's error there is that many times the values'
+    noise: a new particle across a nearly collinear set of particles would
+    get an extrapolated value far outside anything near it).
     """
     k = vals.shape[1]
     if nidx < gdim + 1:
@@ -1124,6 +1137,12 @@ def _fit_eval(x, vals, idx, nidx, pt, out, gdim):
     det = _inv_sym(C, gdim, Ci)
     if tr <= 0.0 or det <= 0.0 or det ** (1.0 / gdim) < 1e-3 * tr / gdim:
         return False
+    dm2 = 0.0
+    for a in range(gdim):
+        for b in range(gdim):
+            dm2 += (pt[a] - xb[a]) * Ci[a, b] * (pt[b] - xb[b])
+    if dm2 > FIT_MAX_EXTRAP**2:
+        return False
     cov = np.zeros(3)
     for j in range(k):
         tb = 0.0
@@ -1143,6 +1162,30 @@ def _fit_eval(x, vals, idx, nidx, pt, out, gdim):
                 ba += Ci[a, b] * cov[b]
             v += ba * (pt[a] - xb[a])
         out[j] = v
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def _within(vals, idx, nidx, out):
+    """Whether ``out`` lies within ``WITHIN_MARGIN`` ranges of ``vals[idx]`` (per component).
+
+    A linear fit evaluated inside the convex hull of its points lies within
+    their range; a little outside it (a new particle placed in the corner of
+    a sparse cell) it may leave it by a fraction of the range. A cell fit
+    that leaves it by more is replaced by the fit over the cell and its
+    neighbours, which surround the new particle.
+    """
+    k = vals.shape[1]
+    for j in range(k):
+        lo = np.inf
+        hi = -np.inf
+        for q in range(nidx):
+            v = vals[idx[q], j]
+            lo = min(lo, v)
+            hi = max(hi, v)
+        pad = WITHIN_MARGIN * (hi - lo) + 1e-12 * max(abs(hi), abs(lo))
+        if out[j] < lo - pad or out[j] > hi + pad:
+            return False
     return True
 
 
@@ -1221,8 +1264,10 @@ def population_add(x, vals, order, offsets, plan, keys, seed, coords, nbr, use_v
 
     Positions: best of ``ncand`` uniform candidates (farthest from the cell's
     particles). Values (when ``use_values``): linear least-squares fit of the
-    particles of the cell, else of the cell and its facet neighbours, else
-    inverse-distance weighting of those; ``src`` tells which (1 fit cell,
+    particles of the cell if it stays near their range, else a fit of the
+    cell and its facet neighbours, else (fits ill posed: too few points, too
+    thin a spread, or too far an extrapolation) inverse-distance weighting
+    of those; ``src`` tells which (1 fit cell,
     2 fit patch, 3 idw, 0 none: caller falls back to the mesh).
     """
     gdim = coords.shape[2]
@@ -1276,7 +1321,7 @@ def population_add(x, vals, order, offsets, plan, keys, seed, coords, nbr, use_v
                 for i in range(a, b):
                     idx[ni] = order[i]
                     ni += 1
-                if _fit_eval(x, vals, idx, ni, best, out, gdim):
+                if _fit_eval(x, vals, idx, ni, best, out, gdim) and _within(vals, idx, ni, out):
                     src[q] = 1
                 else:
                     for f in range(nv):

@@ -7,8 +7,11 @@
   candidates (the one farthest from the existing particles). Their values
   come from the neighbouring particles, error ``o(T'' h²)`` (eq. 4.15): a
   linear least-squares fit of the particles of the cell (exact for linear
-  fields), else of the cell and its facet neighbours, else their
-  inverse-distance average; only when no particle is near does a mesh
+  fields) when its value stays near their range, else a fit of the cell
+  and its facet neighbours, each only up to 6 Mahalanobis radii from its
+  points (a new particle placed across a few nearly collinear ones would
+  otherwise get an extrapolated value far outside anything near it), else
+  their inverse-distance average; only when no particle is near does a mesh
   field (``fallback``) give the value (eq. 4.14), and without one the new
   particle gets 0 (counted as ``unfilled``).
 """

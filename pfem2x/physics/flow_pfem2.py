@@ -15,7 +15,10 @@ motion alone (no convective term is ever assembled). One step
    :math:`a^n` is the P1 field :math:`M_\rho^{-1}\int(\rho g - \nabla p^n)\cdot w`
    (the :math:`\rho`-weighted lumped mass of the correction step), so a fluid
    in hydrostatic balance gets no kick and the particles get no cell-wise jumps.
-2. **Project** :math:`\hat u_p` to the P1 nodes (``method.projection``) →
+2. **Project** :math:`\hat u_p` to the P1 nodes (``method.projection``; ``"auto"``
+   is the paper's shape-function average: the linear-exact fit passes the
+   FLIP velocity's sub-cell noise on to the mesh, and Rayleigh–Taylor at
+   100 × 400 diverged with it at Courant 4 by τ = 2.3) →
    :math:`\hat u`. The density and viscosity are cell-wise constants (DG0)
    from the fraction of each cell's particles with ``phase = 1``: sharp
    within one cell, no smoothing band. The phase is also projected to P1
@@ -243,10 +246,13 @@ class LagrangianFlow(FlowBase):
         if theta > 0.0:
             P.advect(
                 c, self._u_old, dt, velocity_next=self.u, theta=theta,
-                courant=meth["substep_courant"],
+                courant=meth["substep_courant"], gradient_courant=meth["substep_gradient"],
             )  # fmt: skip
         else:
-            P.advect(c, self.u, dt, courant=meth["substep_courant"])
+            P.advect(
+                c, self.u, dt, courant=meth["substep_courant"],
+                gradient_courant=meth["substep_gradient"],
+            )  # fmt: skip
         self._kick(0.5 * dt)  # storage may have been reordered / migrated in between
 
     def _kick(self, h: float) -> None:
@@ -350,6 +356,7 @@ class LagrangianFlow(FlowBase):
         """
         c = self.cloud_
         meth = self.scene["method"]["projection"]
+        meth = "average" if meth == "auto" else meth
         if not self.mass_weighted:
             P.project(c, "u", self.u_hat, method=meth, empty="neighbours")
             return

@@ -681,6 +681,7 @@ class LagrangianTransport(TransportBase):
         meth = scene["method"]
         self.theta = float(meth["theta"])
         self.source_path = meth["source_integration"] == "path"
+        self.projection = "linear" if meth["projection"] == "auto" else meth["projection"]
         self.terms: list[str] = p.active_terms()
         f = p.field
         self.cloud_ = P.Cloud(domain, {f: ()})
@@ -781,6 +782,7 @@ class LagrangianTransport(TransportBase):
                 dt,
                 t=t,
                 courant=meth["substep_courant"],
+                gradient_courant=meth["substep_gradient"],
                 substeps=self.substeps(t, dt)
                 if (src is not None or vel is not self.vel_n)
                 else None,
@@ -796,7 +798,7 @@ class LagrangianTransport(TransportBase):
             c.field(f)[:] += th * dt * p.source(c.x, t1)
         # 3. projection to the mesh
         self.last_projection = P.project(
-            c, f, self.That, method=meth["projection"], empty="neighbours"
+            c, f, self.That, method=self.projection, empty="neighbours"
         )
         self._average_periodic(self.That)
         t2 = time.perf_counter()
