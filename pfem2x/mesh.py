@@ -236,6 +236,7 @@ def build_mesh(
     diagonal: str = "right",
     file: str | os.PathLike | None = None,
     periodic: Any = None,
+    partition: Any = None,
 ) -> Domain:
     """Build a :class:`Domain` from a mesh description.
 
@@ -256,18 +257,33 @@ def build_mesh(
         A gmsh ``.geo`` or ``.msh`` file for ``kind = "gmsh"``.
     periodic:
         One bool per axis.
+    partition:
+        ``[px, py]`` (rectangle only, ``px * py`` = ranks): split the cells
+        among the ranks as a ``px x py`` grid of sub-rectangles. Default: the
+        built-in meshes in strips of rows (blocks of the input numbering),
+        gmsh meshes by DOLFINx's graph partitioner.
 
     Returns
     -------
     Domain
     """
     cell_tags = facet_tags = None
+    if partition is not None:
+        if kind != "rectangle":
+            raise MeshError("mesh.partition: a [px, py] grid is only available for rectangles")
+        if int(partition[0]) * int(partition[1]) != comm.size:
+            raise MeshError(
+                f"mesh.partition: {list(partition)} needs {int(partition[0]) * int(partition[1])}"
+                f" MPI ranks, this run has {comm.size}"
+            )
     if kind == "interval":
         lo, hi = float(np.ravel(bounds[0])[0]), float(np.ravel(bounds[1])[0])
         n = int(np.ravel(cells)[0])
         mesh = compat.create_interval(comm, (lo, hi), n)
     elif kind == "rectangle":
-        mesh = compat.create_rectangle(comm, bounds, cells, diagonal=diagonal.replace("/", "_"))
+        mesh = compat.create_rectangle(
+            comm, bounds, cells, diagonal=diagonal.replace("/", "_"), grid=partition
+        )
     elif kind == "box":
         mesh = compat.create_box(comm, bounds, cells)
     elif kind == "gmsh":

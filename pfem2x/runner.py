@@ -66,6 +66,7 @@ def build_domain(scene: Scene, comm: MPI.Comm) -> Domain:
             diagonal=m["diagonal"],
             file=m["file"],
             periodic=m["periodic"],
+            partition=m["partition"],
         )
     except MeshError as exc:
         raise SceneError(str(exc)) from None

@@ -210,6 +210,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "diagonal": Key(choice("right", "left", "crossed", "left/right", "right/left"), "right"),
         "file": Key(string, doc="gmsh .geo/.msh file (kind = gmsh)"),
         "periodic": Key(list_of(boolean, 1, 3), doc="one bool per axis"),
+        "partition": Key(
+            list_of(integer(1, 100_000), 2, 2),
+            doc="MPI: [px, py] grid of sub-rectangles (rectangle; px*py = ranks); "
+            "default strips of rows",
+        ),
     },
     "effects": {
         "advection": Key(boolean, False),

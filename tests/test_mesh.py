@@ -76,3 +76,37 @@ def test_gmsh_errors(tmp_path):
     bad.write_text("Point(1) = {0, 0, 0\n garbage {{\n")
     with pytest.raises(MeshError, match="bad.geo"):
         build_mesh(MPI.COMM_WORLD, "gmsh", file=bad)
+
+
+def _owned_centroids(domain):
+    t = geometry_table(domain.mesh)
+    n = domain.mesh.topology.index_map(domain.mesh.topology.dim).size_local
+    return t.coords[:n].mean(axis=1)
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("diagonal", ["right", "crossed"])
+def test_partitions_are_deterministic_strips_or_a_grid(diagonal):
+    """Default: strips of rows; mesh.partition = [size, 1]: columns. Same cells every time."""
+    comm = MPI.COMM_WORLD
+    b, cells = [[0.0, 0.0], [2.0, 1.0]], [8, 6]
+    rows = build_mesh(comm, "rectangle", b, cells, diagonal=diagonal)
+    again = build_mesh(comm, "rectangle", b, cells, diagonal=diagonal)
+    cols = build_mesh(comm, "rectangle", b, cells, diagonal=diagonal, partition=[comm.size, 1])
+    ya, xa = _owned_centroids(rows)[:, 1], _owned_centroids(cols)[:, 0]
+    assert np.array_equal(_owned_centroids(rows), _owned_centroids(again))
+    r, s = comm.rank, comm.size
+    # each rank's owned cells lie in its own strip (6 rows / 8 columns over `size` ranks)
+    assert ya.min() >= np.floor(r * 6 / s) / 6 - 1e-12 and ya.max() <= np.ceil((r + 1) * 6 / s) / 6
+    lo, hi = 2.0 * np.floor(r * 8 / s) / 8, 2.0 * np.ceil((r + 1) * 8 / s) / 8
+    assert xa.min() >= lo - 1e-12 and xa.max() <= hi + 1e-12
+    n_all = comm.allreduce(len(xa), op=MPI.SUM)
+    assert n_all == (4 if diagonal == "crossed" else 2) * 48
+
+
+def test_partition_errors():
+    comm = MPI.COMM_WORLD
+    with pytest.raises(MeshError, match="mesh.partition"):
+        build_mesh(comm, "rectangle", [[0, 0], [1, 1]], [4, 4], partition=[2, comm.size])
+    with pytest.raises(MeshError, match="only available for rectangles"):
+        build_mesh(comm, "interval", [[0.0], [1.0]], [4], partition=[1, 1])
