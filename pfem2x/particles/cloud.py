@@ -206,6 +206,35 @@ class Cloud:
         self._n = m
         self._offsets = None
 
+    def remove_unordered(self, idx: np.ndarray) -> np.ndarray:
+        """Remove particles ``idx`` (unique) by moving particles from the end into the holes.
+
+        Costs ``O(len(idx))`` copies instead of compacting every array; the
+        storage order changes. Returns ``newpos`` (``(n_before,)``): the new
+        index of every former particle, ``-1`` for the removed ones.
+        """
+        idx = np.asarray(idx, dtype=np.int64)
+        n = self._n
+        m = len(idx)
+        newpos = np.arange(n, dtype=np.int64)
+        if m == 0:
+            return newpos
+        gone = np.zeros(n, dtype=bool)
+        gone[idx] = True
+        keep_n = n - m
+        src = np.flatnonzero(~gone[keep_n:]) + keep_n  # survivors past the new end
+        dst = idx[idx < keep_n]  # holes before it (as many)
+        dst.sort()
+        self._x[dst] = self._x[src]
+        self._c[dst] = self._c[src]
+        for a in self._f.values():
+            a[dst] = a[src]
+        newpos[idx] = -1
+        newpos[src] = dst
+        self._n = keep_n
+        self._offsets = None
+        return newpos
+
     def extract(self, idx: np.ndarray) -> dict[str, np.ndarray]:
         """Copies of positions, cells and all fields (hidden ones too) of ``idx``."""
         out = {"__x": self._x[idx].copy(), "__c": self._c[idx].copy()}

@@ -153,15 +153,8 @@ def resolve(cloud: Cloud, status: np.ndarray, stats: LocateStats) -> tuple[bool,
     gcell = np.concatenate([pm.global_cell(cloud.cells[ghost]), gcell_r])
     stats.sent += int((dest != comm.rank).sum())
     n_before = cloud.n - int((dest != comm.rank).sum())
-    # keep track of `cont` through the compaction done by exchange
-    flag_name = "__cont"
-    cloud.add_field(flag_name)
-    cloud.field(flag_name)[:] = 0.0
-    cloud.field(flag_name)[cont] = 1.0
-    moved = exchange(cloud, idx, dest, gcell)
+    moved, cont2 = exchange(cloud, idx, dest, gcell, track=cont)
     stats.received += cloud.n - n_before
-    cont2 = np.flatnonzero(cloud.field(flag_name) > 0.5)
-    cloud.remove_field(flag_name)
     return True, np.union1d(cont2, moved)
 
 

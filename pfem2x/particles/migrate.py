@@ -87,14 +87,22 @@ def find_owners(pm: ParticleMesh, x: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return rank, gcell
 
 
-def exchange(cloud: Cloud, idx: np.ndarray, dest: np.ndarray, gcell: np.ndarray) -> np.ndarray:
+def exchange(
+    cloud: Cloud,
+    idx: np.ndarray,
+    dest: np.ndarray,
+    gcell: np.ndarray,
+    track: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Move particles ``idx`` to ranks ``dest`` into global cells ``gcell``.
 
     Particles whose destination is this rank stay (their cell is updated);
-    the others are removed here and appended on their destination with all
+    the others are removed here (the last particles fill their slots, so
+    the storage order changes) and appended on their destination with all
     fields (hidden work fields included). Collective. Returns the indices
-    (after compaction) of the particles that arrived or stayed, so a caller
-    can continue working on them.
+    of the particles that arrived or stayed, so a caller can continue
+    working on them, and the new indices of the ``track`` particles (those
+    that left dropped).
     """
     pm = cloud.pmesh
     comm = cloud.comm
@@ -102,6 +110,7 @@ def exchange(cloud: Cloud, idx: np.ndarray, dest: np.ndarray, gcell: np.ndarray)
     idx = np.asarray(idx, dtype=np.int64)
     dest = np.asarray(dest, dtype=np.int32)
     gcell = np.asarray(gcell, dtype=np.int64)
+    track = np.zeros(0, dtype=np.int64) if track is None else np.asarray(track, dtype=np.int64)
     stay = dest == rank
     local_c = (gcell[stay] - pm.cell_range[0]).astype(np.int32)
     cloud.cells[idx[stay]] = local_c
@@ -125,16 +134,10 @@ def exchange(cloud: Cloud, idx: np.ndarray, dest: np.ndarray, gcell: np.ndarray)
         cols += [cloud._f[nm][ii] for nm in names]
         blocks.append(np.concatenate(cols, axis=1))
     got = alltoallv_rows(comm, blocks, ncol)
-    mark = np.zeros(cloud.n, dtype=bool)
-    mark[gi] = True
-    keep_flag = np.zeros(cloud.n, dtype=bool)
-    keep_flag[stay_idx] = True
-    # compact, then translate the staying indices
-    keep = np.flatnonzero(~mark)
-    newpos = np.full(cloud.n, -1, dtype=np.int64)
-    newpos[keep] = np.arange(len(keep))
-    cloud._take(keep)
+    newpos = cloud.remove_unordered(np.unique(gi))
     stay_new = newpos[stay_idx]
+    tracked = newpos[track]
+    tracked = tracked[tracked >= 0]
     rec = np.concatenate(got, axis=0) if got else np.zeros((0, ncol))
     if rec.shape[0]:
         x = rec[:, :gd]
@@ -149,4 +152,4 @@ def exchange(cloud: Cloud, idx: np.ndarray, dest: np.ndarray, gcell: np.ndarray)
     else:
         arrived = np.zeros(0, dtype=np.int64)
     cloud.invalidate_order()
-    return np.concatenate([stay_new, arrived]).astype(np.int64)
+    return np.concatenate([stay_new, arrived]).astype(np.int64), tracked
