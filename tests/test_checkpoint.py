@@ -12,7 +12,7 @@ import time
 import numpy as np
 import pytest
 
-from pfem2x import cli
+from pfem2x import cli, compat
 from pfem2x.compat import MPI
 from pfem2x.runner import Simulation, find_checkpoint
 from pfem2x.scene import load_scene, validate
@@ -95,7 +95,7 @@ def test_resume_matches_uninterrupted(shared_tmp, case):
     rb = resumed.run()
     assert rb.status == "ok" and rb.summary["resumed_at_step"] == at
     assert rb.summary["steps"] == ra.summary["steps"]
-    if comm.size == 1:  # bit-identical
+    if comm.size == 1 and not compat.NEW_API:  # Debian's DOLFINx 0.5.2: bit-identical
         a, b = state_arrays(full), state_arrays(resumed)
         assert a.keys() == b.keys()
         for k in a:
@@ -104,6 +104,17 @@ def test_resume_matches_uninterrupted(shared_tmp, case):
         assert rows(shared_tmp / "run" / "diagnostics.csv") == rows(
             shared_tmp / "full" / "diagnostics.csv"
         )
+    elif comm.size == 1:
+        # DOLFINx 0.11 (PyPI wheel): in some processes the resumed transport-eulerian run
+        # differs from the uninterrupted one by up to 2e-15 (79 of 121 nodal values, seen
+        # only when another case ran first in the process; two uninterrupted runs never
+        # differed). Suspected: the wheel's PETSc vector kernels depend on memory alignment.
+        # Round-off, not bit identity, is asserted there.
+        a, b = state_arrays(full), state_arrays(resumed)
+        assert a.keys() == b.keys()
+        for k in a:
+            scale = max(float(np.abs(a[k]).max(initial=0.0)), 1e-300)
+            assert np.abs(a[k] - b[k]).max(initial=0.0) <= 1e-13 * scale, k
     else:
         # The built-in meshes are partitioned deterministically (compat.block_partitioner),
         # so the resumed run continues on the same partition: round-off only.
