@@ -64,8 +64,11 @@ def _serial_reference(path: Path, out: Path) -> str | None:
 # Particle frames also differ where population control and neighbour fits see
 # another storage order next to the partition boundary: measured worst 4e-4
 # relative (integrals) and 3e-3 absolute (the minimum of a unit-amplitude field,
-# which is near 0).
+# which is near 0). A "*_change" metric is the difference of two integrals (Zalesak:
+# ~510): there 0.034 absolute was measured on the 0.11 wheel (7e-5 of the integral),
+# so those get 0.05 absolute in the particle frames.
 TOLERANCES = {False: (5e-4, 1e-8), True: (2e-3, 5e-3)}
+CHANGE_ATOL = 0.05
 
 
 def _numbers(d: dict, pre: str = "") -> dict[str, float]:
@@ -92,11 +95,13 @@ def _compare_summaries(serial: Path, parallel: Path) -> int:
         a, b = json.loads(fa.read_text()), json.loads(fb.read_text())
         assert (a["status"], a["steps"]) == (b["status"], b["steps"]), rel
         assert b["mpi_size"] == 2
-        rtol, atol = TOLERANCES[a["frame"] == "lagrangian"]
+        particles = a["frame"] == "lagrangian"
+        rtol, atol0 = TOLERANCES[particles]
         ma, mb = _numbers(a["metrics"]), _numbers(b["metrics"])
         assert ma.keys() == mb.keys(), rel
         for k, va in ma.items():
             vb = mb[k]
+            atol = CHANGE_ATOL if particles and k.endswith("_change") else atol0
             if math.isnan(va):
                 assert math.isnan(vb), (rel, k)
                 continue
