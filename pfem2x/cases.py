@@ -213,6 +213,19 @@ class GaussianHillCase(Case):
         }
 
 
+def reference_error(curve: np.ndarray, ref: np.ndarray, t_from: float = 0.0) -> float | None:
+    """Max ``|y - y_ref(t)|`` over the points of ``curve`` (``[[t, y]]``) inside ``ref``'s range.
+
+    ``ref`` is interpolated linearly; points before ``t_from`` are ignored.
+    ``None`` when no point is in range.
+    """
+    t, y = curve[:, 0], curve[:, 1]
+    sel = (t >= max(t_from, ref[0, 0])) & (t <= ref[-1, 0] + 1e-9)
+    if not sel.any():
+        return None
+    return float(np.abs(y[sel] - np.interp(t[sel], ref[:, 0], ref[:, 1])).max())
+
+
 class DamBreakCase(Case):
     """Surge front and column height of a collapsing liquid column (Martin & Moyce 1952).
 
@@ -229,10 +242,15 @@ class DamBreakCase(Case):
     A solver with particles carrying ``phase`` also gets ``front_particles``
     / ``height_particles``: the largest x of a heavy-phase particle / its
     largest y within a cell of the wall. Metrics: ``front`` = ``[[T, Z]]``,
-    ``height`` = ``[[tau, H]]``, and the particle variants.
+    ``height`` = ``[[tau, H]]``, the particle variants, and (``n2 = 2``, the
+    reference's column) ``front_error`` / ``height_error``: the largest
+    distance to Martin & Moyce's points, interpolated in time (front from
+    ``T = 0.4``), over the run's output times within their range.
     """
 
     name = "dam-break"
+    #: ``front_error`` ignores T < 0.4 (the release: M&M's gate needed time to lift).
+    FRONT_FROM = 0.4
 
     def __init__(self, solver: Any):
         p = solver.scene.params
@@ -275,6 +293,14 @@ class DamBreakCase(Case):
         for key in ("height", "height_particles"):
             if key in history[0]:
                 out[key] = [[h["t"] * f_tau, h[key]] for h in history]
+        if self.n2 == 2.0:  # the reference points are those of the n^2 = 2 column
+            for key, ref, t0 in (
+                ("front", MARTIN_MOYCE_FRONT, self.FRONT_FROM),
+                ("height", MARTIN_MOYCE_HEIGHT, 0.0),
+            ):
+                err = reference_error(np.asarray(out[key]), ref, t0)
+                if err is not None:
+                    out[f"{key}_error"] = err
         return out
 
 

@@ -319,6 +319,22 @@ SCHEMA: dict[str, dict[str, Key]] = {
             doc="PFEM-2, two phases: project the particle velocity to the nodes weighted by "
             "the particle density (sum rho u / sum rho; for large density ratios)",
         ),
+        "pressure_step": Key(
+            choice("increment", "total"),
+            "increment",
+            doc="increment: the explicit source has -grad(p^n)/rho and the pressure step "
+            "solves the increment (paper); total: the explicit source is gravity only and "
+            "the pressure step solves the whole pressure each step (non-incremental; "
+            "energy-stable at large density ratios, first order in dt)",
+        ),
+        "correction": Key(
+            choice("velocity", "momentum"),
+            "velocity",
+            doc="velocity correction of the pressure step: u -= dt M^-1 int grad(dp).w / rho "
+            "(velocity: the same 1/rho as the pressure equation, conserves phase volumes at "
+            "large density ratios) or u -= dt M_rho^-1 int grad(dp).w (momentum: rho-weighted "
+            "lumped mass, pfem2x < 0.3)",
+        ),
         "rtol": Key(number(0.0, 1.0, lo_open=True), 1e-8, doc="linear solver tolerance"),
         "quadrature_degree": Key(integer(1, 20), 4, doc="quadrature degree of the flow forms"),
     },

@@ -122,6 +122,8 @@ class FlowProblem:
         self.interface_width = float(fl["interface_width"])
         self.reinit_every = int(fl["reinit_every"])
         self.rtol = float(fl["rtol"])
+        self.correction = str(fl["correction"])
+        self.incremental = fl["pressure_step"] == "increment"
         self.quadrature_degree = int(fl["quadrature_degree"])
 
 
@@ -238,6 +240,9 @@ class FlowBase(Solver):
         gl = np.concatenate([-inv.sum(axis=1, keepdims=True), inv], axis=1)
         self._gradlam = gl  # (n, 3, gdim)
         self._hcell = tab.h_edge[: self.n_owned]
+        # -g.x at the cell centroids: potential energy = sum rho_K |K| (-g.x_K) (exact for DG0 rho)
+        g = np.zeros(gdim) if pr.gravity is None else np.asarray(pr.gravity, dtype=float)[:gdim]
+        self._gravity_height = -(self.cell_xy.mean(axis=1) @ g) if np.any(g) else None
         self.phi: Any = None
         self.phase: Any = None
         if pr.two_phase:
@@ -405,7 +410,10 @@ class FlowBase(Solver):
         div = np.einsum("ckj,ckj->c", uc, self._gradlam)
         speed_c = np.linalg.norm(uc, axis=2).max(axis=1) if len(uc) else np.zeros(0)
         rho_c = self._cell_density()
-        ke = 0.5 * np.sum(rho_c * np.mean(np.sum(uc**2, axis=2), axis=1) * self.cell_vol)
+        # exact for P1 u: int_K |u|^2 = |K| / (d+1)(d+2) (sum_i |u_i|^2 + |sum_i u_i|^2)
+        nv = uc.shape[1]
+        u2 = (np.sum(uc**2, axis=(1, 2)) + np.sum(uc.sum(axis=1) ** 2, axis=1)) / (nv * (nv + 1))
+        ke = 0.5 * np.sum(rho_c * u2 * self.cell_vol)
         d = {
             "tau": t * self.problem.time_factor,
             "kinetic_energy": float(comm.allreduce(ke, op=MPI.SUM)),
@@ -418,6 +426,9 @@ class FlowBase(Solver):
                 )
             ),
         }
+        if self._gravity_height is not None:
+            pe = float(np.sum(rho_c * self.cell_vol * self._gravity_height))
+            d["potential_energy"] = float(comm.allreduce(pe, op=MPI.SUM))
         for name, v in self._phase_volumes().items():
             d[f"volume_{name}"] = v
             v0 = self.volume0.get(name, v)
@@ -436,6 +447,13 @@ class FlowBase(Solver):
             "courant_max": max(h["courant"] for h in history),
             "speed_max": max(h["speed_max"] for h in history),
         }
+        if "potential_energy" in history[0]:
+            # kinetic energy against the potential energy released since the start
+            released = [history[0]["potential_energy"] - h["potential_energy"] for h in history]
+            excess = [h["kinetic_energy"] - r for h, r in zip(history, released, strict=True)]
+            out["energy_released_final"] = released[-1]
+            top = max(max(released), max(h["kinetic_energy"] for h in history))
+            out["energy_excess_max"] = max(excess) / top if top > 0.0 else 0.0
         for name, *_ in self.problem.phases:
             out[f"volume_{name}"] = [history[0][f"volume_{name}"], history[-1][f"volume_{name}"]]
             out[f"volume_change_{name}"] = history[-1][f"volume_change_{name}"]
@@ -478,10 +496,18 @@ class FlowBase(Solver):
         self.b_p = compat.create_vector(self.L_p)
         self.p_solver: fem.LinearSolver | None = None
         self.nullspace = None
-        self.L_c = compat.form(ufl.dot(ufl.grad(self.dp), w) * dxq)
-        self.L_mass = compat.form(rho * ufl.dot(w, ufl.as_vector([1.0] * self.gdim)) * dxq)
-        self.b_c = compat.create_vector(self.L_c)
+        ones = ufl.as_vector([1.0] * self.gdim)
+        self.L_mass = compat.form(rho * ufl.dot(w, ones) * dxq)
         self.b_mass = compat.create_vector(self.L_mass)
+        if self.problem.correction == "velocity":
+            # u -= dt M^-1 int rho^-1 grad(dp).w: the pressure equation's own 1/rho
+            self.L_c = compat.form(ufl.dot(ufl.grad(self.dp), w) / rho * dxq)
+            self.b_lumped = compat.create_vector(self.L_c)
+            fem.assemble_vector(compat.form(ufl.dot(w, ones) * dxq), self.b_lumped)
+        else:
+            self.L_c = compat.form(ufl.dot(ufl.grad(self.dp), w) * dxq)
+            self.b_lumped = None
+        self.b_c = compat.create_vector(self.L_c)
         self.iterations: dict[str, int] = {}
 
     def _pressure_operator(self) -> None:
@@ -510,18 +536,28 @@ class FlowBase(Solver):
         self._solve_pressure(self.L_p0, self.p)
 
     def _correct(self, dt: float, mass_ready: bool = False) -> None:
-        """``u = u* - dt M_rho^-1 grad(dp)``, Dirichlet values, ``p += dp``.
+        """``u = u* - dt M^-1 grad(dp)``, Dirichlet values, ``p += dp`` (or ``p = dp``).
 
-        ``mass_ready``: ``b_mass`` already holds the lumped mass of the current density.
+        ``flow.correction``: ``M^-1 int rho^-1 grad(dp).w`` (velocity) or
+        ``M_rho^-1 int grad(dp).w`` (momentum). ``flow.pressure_step = "total"``:
+        ``dp`` is the whole pressure. ``mass_ready``: ``b_mass`` already holds
+        the lumped mass of the current density.
         """
         fem.assemble_vector(self.L_c, self.b_c)
-        if not mass_ready:
-            fem.assemble_vector(self.L_mass, self.b_mass)
+        if self.b_lumped is not None:
+            mass = self.b_lumped
+        else:
+            if not mass_ready:
+                fem.assemble_vector(self.L_mass, self.b_mass)
+            mass = self.b_mass
         n = len(self.b_c.array_r)
-        self.u.x.array[:n] = self.u_star.x.array[:n] - dt * self.b_c.array_r / self.b_mass.array_r
+        self.u.x.array[:n] = self.u_star.x.array[:n] - dt * self.b_c.array_r / mass.array_r
         compat.set_bc(compat.petsc_vec(self.u), self._bcs_u)
         self.u.x.scatter_forward()
-        self.p.x.array[:] += self.dp.x.array
+        if self.problem.incremental:
+            self.p.x.array[:] += self.dp.x.array
+        else:
+            self.p.x.array[:] = self.dp.x.array
 
     # -- API ------------------------------------------------------------------
     def max_velocity(self, t: float) -> float:
@@ -624,7 +660,9 @@ class EulerianFlow(FlowBase):
             + rho * ufl.dot(conv, w)
             + 2.0 * mu * ufl.inner(ufl.sym(ufl.grad(v)), ufl.sym(ufl.grad(w)))
         ) * dxq
-        L_m = (rho / dt * ufl.dot(un, w) + self.p * ufl.div(w) + ufl.dot(fg, w)) * dxq
+        # incremental: -grad(p^n) in the predictor; total: the pressure step finds all of p
+        p_n = self.p if pr.incremental else compat.dolfinx.fem.Constant(mesh, sc(0.0))
+        L_m = (rho / dt * ufl.dot(un, w) + p_n * ufl.div(w) + ufl.dot(fg, w)) * dxq
         if supg:
             nu = mu / rho
             tau_m = 1.0 / ufl.sqrt(
@@ -632,7 +670,7 @@ class EulerianFlow(FlowBase):
             )
             ws = tau_m * ufl.dot(ufl.grad(w), un)
             a_m = a_m + ufl.dot(ws, rho * (v / dt + conv)) * dxq
-            L_m = L_m + ufl.dot(ws, rho * un / dt - ufl.grad(self.p) + fg) * dxq
+            L_m = L_m + ufl.dot(ws, rho * un / dt - ufl.grad(p_n) + fg) * dxq
         self.a_m, self.L_m = compat.form(a_m), compat.form(L_m)
         self.A_m = None
         self.b_m = compat.create_vector(self.L_m)
