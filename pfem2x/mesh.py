@@ -259,7 +259,8 @@ def build_mesh(
         One bool per axis.
     partition:
         ``[px, py]`` (rectangle only, ``px * py`` = ranks): split the cells
-        among the ranks as a ``px x py`` grid of sub-rectangles. Default: the
+        among the ranks as a ``px x py`` grid of sub-rectangles;
+        ``"columns"`` = ``[ranks, 1]``. Default (``None`` or ``"rows"``): the
         built-in meshes in strips of rows (blocks of the input numbering),
         gmsh meshes by DOLFINx's graph partitioner.
 
@@ -268,6 +269,12 @@ def build_mesh(
     Domain
     """
     cell_tags = facet_tags = None
+    if partition == "rows":
+        partition = None
+    elif partition == "columns":
+        if kind != "rectangle":
+            raise MeshError('mesh.partition: "columns" is only available for rectangles')
+        partition = [comm.size, 1]
     if partition is not None:
         if kind != "rectangle":
             raise MeshError("mesh.partition: a [px, py] grid is only available for rectangles")

@@ -159,6 +159,15 @@ def list_of(
     return check
 
 
+def partition_check(key: str, v: Any) -> str | list[int]:
+    """``"rows"``, ``"columns"`` or a ``[px, py]`` grid."""
+    if isinstance(v, str):
+        return choice("rows", "columns")(key, v)
+    if not isinstance(v, list):
+        raise SceneError(f'{key}: expected "rows", "columns" or [px, py], got {v!r}')
+    return list_of(integer(1, 100_000), 2, 2)(key, v)
+
+
 def bounds_check(key: str, v: Any) -> list[list[float]]:
     """``[lo, hi]`` corners: numbers (interval) or equal-length lists of numbers."""
     if not isinstance(v, list) or len(v) != 2:
@@ -211,9 +220,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "file": Key(string, doc="gmsh .geo/.msh file (kind = gmsh)"),
         "periodic": Key(list_of(boolean, 1, 3), doc="one bool per axis"),
         "partition": Key(
-            list_of(integer(1, 100_000), 2, 2),
-            doc="MPI: [px, py] grid of sub-rectangles (rectangle; px*py = ranks); "
-            "default strips of rows",
+            partition_check,
+            doc="MPI: rows (strips of rows), columns (rectangle: strips of columns) or "
+            "[px, py] grid of sub-rectangles (rectangle; px*py = ranks); default rows",
         ),
     },
     "effects": {

@@ -93,6 +93,10 @@ def test_partitions_are_deterministic_strips_or_a_grid(diagonal):
     rows = build_mesh(comm, "rectangle", b, cells, diagonal=diagonal)
     again = build_mesh(comm, "rectangle", b, cells, diagonal=diagonal)
     cols = build_mesh(comm, "rectangle", b, cells, diagonal=diagonal, partition=[comm.size, 1])
+    named_rows = build_mesh(comm, "rectangle", b, cells, diagonal=diagonal, partition="rows")
+    named_cols = build_mesh(comm, "rectangle", b, cells, diagonal=diagonal, partition="columns")
+    assert np.array_equal(_owned_centroids(named_rows), _owned_centroids(rows))
+    assert np.array_equal(_owned_centroids(named_cols), _owned_centroids(cols))
     ya, xa = _owned_centroids(rows)[:, 1], _owned_centroids(cols)[:, 0]
     assert np.array_equal(_owned_centroids(rows), _owned_centroids(again))
     r, s = comm.rank, comm.size
@@ -110,3 +114,5 @@ def test_partition_errors():
         build_mesh(comm, "rectangle", [[0, 0], [1, 1]], [4, 4], partition=[2, comm.size])
     with pytest.raises(MeshError, match="only available for rectangles"):
         build_mesh(comm, "interval", [[0.0], [1.0]], [4], partition=[1, 1])
+    with pytest.raises(MeshError, match="only available for rectangles"):
+        build_mesh(comm, "interval", [[0.0], [1.0]], [4], partition="columns")

@@ -58,6 +58,10 @@ BROKEN = {
         ["mesh.cells[0]", "integer"],
     ),
     "negative_dt": (GOOD.replace("dt = 0.05", "dt = -0.05"), ["time.dt"]),
+    "partition_word": (
+        GOOD.replace("cells = [4, 4]", 'cells = [4, 4]\npartition = "colums"'),
+        ["mesh.partition", "columns"],
+    ),
     "t_end_zero": (GOOD.replace("t_end = 0.1", "t_end = 0.0"), ["time.t_end"]),
     "zero_cells": (GOOD.replace("cells = [4, 4]", "cells = [0, 4]"), ["mesh.cells[0]"]),
     "dt_and_courant": (
