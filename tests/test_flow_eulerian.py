@@ -64,6 +64,37 @@ def test_p1_levelset_geometry():
 
 
 @pytest.mark.mpi
+def test_redistance_keeps_the_interface(tmp_path_factory):
+    """Re-distancing leaves the zero iso-line where it was and makes phi a distance elsewhere.
+
+    phi = 3 (y - 0.1 cos 2 pi x) (three times a near-distance, curved): after
+    ``redistance()`` the nodes of cut cells are unchanged (so is the P1 zero
+    line: re-distancing them too moved the bubble tip of RT up by 0.06 d over
+    500 steps), and the other nodes within the band hold the distance to it.
+    """
+    sc = load_scene("rayleigh-taylor", ["method.frame=eulerian"], variant="small")
+    s = make_solver(sc, build_domain(sc, MPI.COMM_WORLD))
+    x, y = s.coords[:, 0], s.coords[:, 1]
+    s.phi.x.array[:] = 3.0 * (y - 0.1 * np.cos(2 * np.pi * x))
+    before = s.phi.x.array.copy()
+    segs = s._segments_global(cut_segments(before[s.dofmap[: s.n_owned]], s.cell_xy))
+    s.redistance()
+    after = s.phi.x.array
+    vals = before[s.dofmap]  # local cells (owned and ghost): their nodes are local
+    cut = np.unique(s.dofmap[(vals.min(axis=1) < 0) & (vals.max(axis=1) > 0)])
+    assert np.array_equal(after[cut], before[cut])
+    # kept: nodes of cut cells on any rank (a node's owner may not hold all its cells)
+    kept = np.flatnonzero(s._keep.x.array > 0)
+    assert np.all(np.isin(cut, kept)) and np.array_equal(after[kept], before[kept])
+    n_kept = MPI.COMM_WORLD.allreduce(len(np.setdiff1d(kept, cut)), op=MPI.SUM)
+    assert n_kept <= MPI.COMM_WORLD.allreduce(len(kept), op=MPI.SUM) // 5
+    far = np.setdiff1d(np.flatnonzero(np.abs(after) < 0.2), kept)
+    d = segment_distance(s.coords[far, :2], segs)
+    assert np.allclose(np.abs(after[far]), d, atol=1e-12)
+    assert np.array_equal(np.sign(after[far]), np.sign(before[far]))
+
+
+@pytest.mark.mpi
 def test_flat_interface_at_rest(shared_tmp):
     """Heavy below light, flat interface: hydrostatic, must stay (nearly) at rest.
 

@@ -161,6 +161,58 @@ def test_rayleigh_taylor_courant8_to_tau_2_5(shared_tmp):
             assert np.abs(a[:, 1] - b[:, 1]).max() < 0.01, (key, a, b)  # d = 1
 
 
+VORTEX = """
+[scene]
+name = "vortex"
+physics = "flow"
+[mesh]
+kind = "rectangle"
+bounds = [[0.0, 0.0], [1.0, 1.0]]
+cells = [16, 16]
+[effects]
+viscosity = true
+[phases.fluid]
+density = 1.0
+viscosity = 1e-3
+[flow]
+initial_velocity = ["sin(pi*x)*cos(pi*y)", "-cos(pi*x)*sin(pi*y)"]
+walls = "slip"
+[time]
+t_end = 0.5
+courant = 2.0
+"""
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("frame", ["lagrangian", "eulerian"])
+def test_single_fluid_without_gravity_has_no_phase_and_no_body_force(shared_tmp, frame):
+    """The issue: no gravity -> no body force in any form; one fluid -> no phase.
+
+    A decaying vortex in a slip box (one fluid, no gravity, Courant 2): no
+    level set / phase field / particle phase, no body force or hydrostatic
+    start, no potential energy; the kinetic energy only decays.
+    """
+    path = shared_tmp / f"vortex_{frame}.toml"
+    if MPI.COMM_WORLD.rank == 0:
+        path.write_text(VORTEX)
+    MPI.COMM_WORLD.Barrier()
+    sc = load_scene(str(path), [f"method.frame={frame}"])
+    s = make_solver(sc, build_domain(sc, MPI.COMM_WORLD))
+    assert s.body_force is None and s.L_p0 is None
+    assert s.phase is None and s.phi is None
+    if frame == "lagrangian":
+        assert "phase" not in s.cloud()
+    d0 = s.diagnostics(0.0)
+    assert "potential_energy" not in d0 and "tip_falling" not in d0
+    t, dt = 0.0, 0.125
+    for _ in range(4):
+        s.step(t, dt)
+        t += dt
+    d1 = s.diagnostics(t)
+    assert np.isfinite(d1["kinetic_energy"]) and d1["kinetic_energy"] < d0["kinetic_energy"]
+    assert d1["kinetic_energy"] > 0.3 * d0["kinetic_energy"]  # slip walls, mu = 1e-3
+
+
 @pytest.mark.parametrize("side", ["top", "walls"])
 def test_refuses_open_sides(side):
     kind = "outflow" if side == "top" else "noslip"

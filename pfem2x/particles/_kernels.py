@@ -243,7 +243,7 @@ def clamp_into(x, cells, origin, inv, coords):
 
 WITHIN_MARGIN = 1.0  # new particle, cell fit: may leave the samples' range by this x range
 FIT_MAX_EXTRAP = 6.0  # new particle: fits only up to this many Mahalanobis radii from the samples
-THETA_MAXIT = 30  # fixed-point iterations of eq. (2.10) per particle and step, over all ranks
+THETA_MAXIT = 30  # Newton iterations of eq. (2.10) per particle and step, over all ranks
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -500,7 +500,7 @@ def _advect_p1_any(
                 xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc,
                 its0, wth,
             )  # fmt: skip
-            tl = float(its)  # in stage 1, t_left counts fixed-point iterations
+            tl = float(its)  # in stage 1, t_left counts Newton iterations
             for j in range(gdim):
                 aux[p, j] = y[j]
             if st == ST_OK:
@@ -807,7 +807,7 @@ def _advect_p1_tri(
                 xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc,
                 its0, wth,
             )  # fmt: skip
-            tl = float(its)  # in stage 1, t_left counts fixed-point iterations
+            tl = float(its)  # in stage 1, t_left counts Newton iterations
             aux[p, 0] = y[0]
             aux[p, 1] = y[1]
             p0 = xp[0]

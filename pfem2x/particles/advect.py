@@ -84,7 +84,7 @@ def advect(
     velocity_next, theta:
         ``V^{n+1}`` (P1) and the X-IVAS blend of eq. (2.10):
         ``x^{n+1} = x^n + (1-theta) int V^n(x(t)) dt + theta dt V^{n+1}(x^{n+1})``,
-        the implicit part solved by fixed-point iteration.
+        the implicit part solved by Newton iterations (cell gradient of ``V^{n+1}``).
     courant:
         Local Courant number of one sub-step, ``|v| h_sub / h_cell``; the
         sub-step count of each particle adapts to its own speed and cell.

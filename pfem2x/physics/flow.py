@@ -355,6 +355,20 @@ class FlowBase(Solver):
         new = np.sign(phi) * L
         d = segment_distance(self.coords[near, :2], segs)
         new[near] = np.where(phi[near] >= 0, 1.0, -1.0) * np.minimum(d, L)
+        # the nodes of cut cells keep their values: the zero iso-line does not move
+        # (re-distancing them too moved the bubble tip of Rayleigh-Taylor up by
+        # 0.06 d at tau = 2 over 500 steps)
+        allv = phi[self.dofmap]
+        cut = (allv.min(axis=1) < 0.0) & (allv.max(axis=1) > 0.0)
+        if not hasattr(self, "_keep"):
+            self._keep = compat.dolfinx.fem.Function(self.Q)
+        mark = self._keep.x.array
+        mark[:] = 0.0
+        mark[self.dofmap[cut]] = 1.0
+        compat.scatter_reverse_add(self._keep.x)  # the owner learns of cut cells it lacks
+        compat.scatter_forward(self._keep.x)
+        keep = mark > 0.0
+        new[keep] = phi[keep]
         self.phi.x.array[:] = new
 
     def _update_phase(self) -> None:
@@ -480,7 +494,8 @@ class FlowBase(Solver):
         rho:
             UFL density (smoothed level set, a DG0 function, a constant).
         f_body:
-            UFL body force per volume (:math:`\rho g`), for the hydrostatic start.
+            UFL body force per volume (:math:`\rho g`), for the hydrostatic start;
+            ``None`` without gravity.
         dxq:
             The cell measure.
         """
@@ -491,7 +506,13 @@ class FlowBase(Solver):
         w = ufl.TestFunction(V)
         self.a_p = compat.form((1.0 / rho) * ufl.dot(ufl.grad(q), ufl.grad(r)) * dxq)
         self.L_p = compat.form(-(1.0 / self.dt_c) * ufl.div(self.u_star) * r * dxq)
-        self.L_p0 = compat.form((1.0 / rho) * ufl.dot(f_body, ufl.grad(r)) * dxq)
+        #: the body force (UFL) in the forms; None without effects.gravity (nothing assembled)
+        self.body_force = f_body
+        self.L_p0 = (
+            compat.form((1.0 / rho) * ufl.dot(f_body, ufl.grad(r)) * dxq)
+            if f_body is not None
+            else None
+        )
         self.A_p = None
         self.b_p = compat.create_vector(self.L_p)
         self.p_solver: fem.LinearSolver | None = None
@@ -633,8 +654,8 @@ class EulerianFlow(FlowBase):
         # Gravity as rho g with the full pressure. (The interFoam-style p_rgh form,
         # force -(g.x) grad rho, was tried: twice the spurious wall currents of a
         # flat interface at rest on P1/P1, so it is not used.)
-        self._f_grav = rho * g
-        fg = self._f_grav
+        fg = rho * g if np.any(pr.gravity) else None  # no body force without gravity
+        self._f_grav = fg
         self._setup_projection(rho, fg, dxq)
         unorm = ufl.sqrt(ufl.dot(un, un) + 1e-30)
 
@@ -662,7 +683,9 @@ class EulerianFlow(FlowBase):
         ) * dxq
         # incremental: -grad(p^n) in the predictor; total: the pressure step finds all of p
         p_n = self.p if pr.incremental else compat.dolfinx.fem.Constant(mesh, sc(0.0))
-        L_m = (rho / dt * ufl.dot(un, w) + p_n * ufl.div(w) + ufl.dot(fg, w)) * dxq
+        L_m = (rho / dt * ufl.dot(un, w) + p_n * ufl.div(w)) * dxq
+        if fg is not None:
+            L_m = L_m + ufl.dot(fg, w) * dxq
         if supg:
             nu = mu / rho
             tau_m = 1.0 / ufl.sqrt(
@@ -670,7 +693,8 @@ class EulerianFlow(FlowBase):
             )
             ws = tau_m * ufl.dot(ufl.grad(w), un)
             a_m = a_m + ufl.dot(ws, rho * (v / dt + conv)) * dxq
-            L_m = L_m + ufl.dot(ws, rho * un / dt - ufl.grad(p_n) + fg) * dxq
+            r_m = rho * un / dt - ufl.grad(p_n)
+            L_m = L_m + ufl.dot(ws, r_m if fg is None else r_m + fg) * dxq
         self.a_m, self.L_m = compat.form(a_m), compat.form(L_m)
         self.A_m = None
         self.b_m = compat.create_vector(self.L_m)

@@ -162,8 +162,9 @@ class LagrangianFlow(FlowBase):
 
         # forms
         dx = ufl.dx(domain=mesh)
+        grav = bool(np.any(pr.gravity))  # without gravity no form has a body force
         g = compat.dolfinx.fem.Constant(mesh, np.asarray(pr.gravity, dtype=sc))
-        self._setup_projection(self.rho, self.rho * g, dx)
+        self._setup_projection(self.rho, self.rho * g if grav else None, dx)
         v, w = ufl.TrialFunction(self.V), ufl.TestFunction(self.V)
         mus = {m for (_, _, m, _) in pr.phases}
         self.viscous = max(mus) > 0.0
@@ -174,12 +175,14 @@ class LagrangianFlow(FlowBase):
         self.K: Any = None
         self.A_m: Any = None
         self.m_solver: fem.LinearSolver | None = None
-        self.L_f = compat.form(ufl.dot(self.rho * g - ufl.grad(self.p), w) * dx)
+        a_rho = self.rho * g - ufl.grad(self.p) if grav else -ufl.grad(self.p)
+        self.L_f = compat.form(ufl.dot(a_rho, w) * dx)
         self.b_f = compat.create_vector(self.L_f)
         if self.light_gravity_only:
             # heavy particles: a_heavy = g - M^-1 int grad(p).w / rho_heavy (lumped M)
             self.force_heavy = compat.dolfinx.fem.Function(self.V)
-            self.L_fh = compat.form(ufl.dot(g - ufl.grad(self.p) / pr.phases[0][1], w) * dx)
+            a_h = -ufl.grad(self.p) / pr.phases[0][1]
+            self.L_fh = compat.form(ufl.dot(g + a_h if grav else a_h, w) * dx)
             self.b_fh = compat.create_vector(self.L_fh)
             self.b_m1 = compat.create_vector(self.L_mass)
             fem.assemble_vector(
