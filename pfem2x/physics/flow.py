@@ -241,13 +241,14 @@ class FlowBase(Solver):
         self._gradlam = gl  # (n, 3, gdim)
         self._hcell = tab.h_edge[: self.n_owned]
         # -g.x at the cell centroids: potential energy = sum rho_K |K| (-g.x_K) (exact for DG0 rho)
-        g = np.zeros(gdim) if pr.gravity is None else np.asarray(pr.gravity, dtype=float)[:gdim]
+        g = pr.gravity[:gdim]
         self._gravity_height = -(self.cell_xy.mean(axis=1) @ g) if np.any(g) else None
         self.phi: Any = None
         self.phase: Any = None
         if pr.two_phase:
             self.phi = compat.dolfinx.fem.Function(self.Q, name="phi")
             self.phase = compat.dolfinx.fem.Function(self.Q, name="phase")
+            self._keep = compat.dolfinx.fem.Function(self.Q)  # re-distancing: frozen nodes
             self._init_levelset()
         self.dt_last = 0.0
         self.steps_done = 0
@@ -360,8 +361,6 @@ class FlowBase(Solver):
         # 0.06 d at tau = 2 over 500 steps)
         allv = phi[self.dofmap]
         cut = (allv.min(axis=1) < 0.0) & (allv.max(axis=1) > 0.0)
-        if not hasattr(self, "_keep"):
-            self._keep = compat.dolfinx.fem.Function(self.Q)
         mark = self._keep.x.array
         mark[:] = 0.0
         mark[self.dofmap[cut]] = 1.0
@@ -520,14 +519,14 @@ class FlowBase(Solver):
         ones = ufl.as_vector([1.0] * self.gdim)
         self.L_mass = compat.form(rho * ufl.dot(w, ones) * dxq)
         self.b_mass = compat.create_vector(self.L_mass)
+        # the plain lumped mass M (assembled once)
+        self.b_lumped = compat.create_vector(self.L_mass)
+        fem.assemble_vector(compat.form(ufl.dot(w, ones) * dxq), self.b_lumped)
         if self.problem.correction == "velocity":
             # u -= dt M^-1 int rho^-1 grad(dp).w: the pressure equation's own 1/rho
             self.L_c = compat.form(ufl.dot(ufl.grad(self.dp), w) / rho * dxq)
-            self.b_lumped = compat.create_vector(self.L_c)
-            fem.assemble_vector(compat.form(ufl.dot(w, ones) * dxq), self.b_lumped)
         else:
             self.L_c = compat.form(ufl.dot(ufl.grad(self.dp), w) * dxq)
-            self.b_lumped = None
         self.b_c = compat.create_vector(self.L_c)
         self.iterations: dict[str, int] = {}
 
@@ -565,7 +564,7 @@ class FlowBase(Solver):
         the lumped mass of the current density.
         """
         fem.assemble_vector(self.L_c, self.b_c)
-        if self.b_lumped is not None:
+        if self.problem.correction == "velocity":
             mass = self.b_lumped
         else:
             if not mass_ready:

@@ -184,10 +184,6 @@ class LagrangianFlow(FlowBase):
             a_h = -ufl.grad(self.p) / pr.phases[0][1]
             self.L_fh = compat.form(ufl.dot(g + a_h if grav else a_h, w) * dx)
             self.b_fh = compat.create_vector(self.L_fh)
-            self.b_m1 = compat.create_vector(self.L_mass)
-            fem.assemble_vector(
-                compat.form(ufl.dot(w, ufl.as_vector([1.0] * self.gdim)) * dx), self.b_m1
-            )
         self.b_m = compat.create_vector(self.L_mass)
         self._diag = compat.create_vector(self.L_mass)
 
@@ -249,7 +245,7 @@ class LagrangianFlow(FlowBase):
         self.force.x.scatter_forward()
         if self.light_gravity_only:
             fem.assemble_vector(self.L_fh, self.b_fh)
-            self.force_heavy.x.array[:n] = self.b_fh.array_r / self.b_m1.array_r
+            self.force_heavy.x.array[:n] = self.b_fh.array_r / self.b_lumped.array_r
             self.force_heavy.x.scatter_forward()
 
     # -- the step -----------------------------------------------------------------
