@@ -63,6 +63,31 @@ def test_p1_levelset_geometry():
     assert np.allclose(d, [0.2, 0.3])
 
 
+@pytest.mark.parametrize("chunk", [4_000_000, 500])
+def test_segment_distance_with_cap_is_exact_within_the_cap(chunk):
+    """The bucketed search (``cap``) gives the all-pairs distance wherever it is <= cap.
+
+    A spiral of 800 segments (a rolled-up interface) and 5000 points in and
+    around its box; points farther than ``cap`` from every segment must come
+    back as more than ``cap`` (the re-distancing clips them to ``cap``).
+    """
+    rng = np.random.default_rng(7)
+    t = np.linspace(0.0, 1.0, 801)
+    line = np.c_[0.4 * t * np.cos(12 * t), 1.5 * t * np.sin(12 * t) - 0.3]
+    segs = np.stack([line[:-1], line[1:]], axis=1)
+    pts = rng.uniform([-0.7, -2.2], [0.7, 1.7], (5000, 2))
+    pts[:10] = line[:10]  # on the line: distance 0
+    ref = segment_distance(pts, segs)
+    for cap in (0.02, 0.15, 3.0):
+        d = segment_distance(pts, segs, cap=cap, chunk=chunk)
+        inside = ref <= cap
+        assert inside.sum() > 50 and (cap > 1.0 or (~inside).sum() > 50)
+        assert np.array_equal(d[inside], ref[inside])
+        assert np.all(d[~inside] > cap)
+    assert np.all(segment_distance(pts[:10], segs, cap=0.01) == 0.0)
+    assert segment_distance(pts, segs[:0], cap=0.1).min() == np.inf
+
+
 @pytest.mark.mpi
 def test_redistance_keeps_the_interface(tmp_path_factory):
     """Re-distancing leaves the zero iso-line where it was and makes phi a distance elsewhere.

@@ -185,8 +185,31 @@ def cut_segments(vals: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return np.take_along_axis(pts, idx[:, :, None], axis=1)
 
 
-def segment_distance(points: np.ndarray, segs: np.ndarray, chunk: int = 4_000_000) -> np.ndarray:
-    """Distance from each point ``(n, 2)`` to the nearest of the segments ``(m, 2, 2)``."""
+def segment_distance(
+    points: np.ndarray, segs: np.ndarray, cap: float | None = None, chunk: int = 4_000_000
+) -> np.ndarray:
+    """Distance from each point ``(n, 2)`` to the nearest of the segments ``(m, 2, 2)``.
+
+    Parameters
+    ----------
+    points
+        Query points, shape ``(n, 2)``.
+    segs
+        Segments, shape ``(m, 2, 2)`` (two end points each).
+    cap
+        Only distances up to ``cap`` are needed: a point farther than ``cap`` from
+        every segment gets ``inf`` (or a distance ``> cap``). Segments are then
+        binned into square buckets and each point is measured only against the
+        segments within ``cap`` of its bucket, which turns the all-pairs cost
+        ``n * m`` into about ``m * (points within cap of a segment)``.
+    chunk
+        Largest number of point-segment pairs measured at once (memory bound).
+
+    Returns
+    -------
+    numpy.ndarray
+        Distances, shape ``(n,)``; exact wherever they are ``<= cap``.
+    """
     n, m = len(points), len(segs)
     out = np.full(n, np.inf)
     if m == 0 or n == 0:
@@ -194,13 +217,65 @@ def segment_distance(points: np.ndarray, segs: np.ndarray, chunk: int = 4_000_00
     a = segs[:, 0]
     ab = segs[:, 1] - a
     ab2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
-    step = max(1, chunk // m)
-    for k in range(0, n, step):
-        p = points[k : k + step]
-        ap = p[:, None, :] - a[None, :, :]
-        s = np.clip(np.einsum("nmj,mj->nm", ap, ab) / ab2, 0.0, 1.0)
-        d = ap - s[:, :, None] * ab[None, :, :]
-        out[k : k + step] = np.sqrt(np.min(np.einsum("nmj,nmj->nm", d, d), axis=1))
+
+    def measure(pi: np.ndarray, si: np.ndarray) -> np.ndarray:
+        ap = points[pi] - a[si]
+        s = np.clip(np.einsum("kj,kj->k", ap, ab[si]) / ab2[si], 0.0, 1.0)
+        d = ap - s[:, None] * ab[si]
+        return np.einsum("kj,kj->k", d, d)
+
+    def all_pairs() -> np.ndarray:
+        step = max(1, chunk // m)
+        for k in range(0, n, step):
+            ap = points[k : k + step, None, :] - a[None, :, :]
+            s = np.clip(np.einsum("nmj,mj->nm", ap, ab) / ab2, 0.0, 1.0)
+            d = ap - s[:, :, None] * ab[None, :, :]
+            out[k : k + step] = np.sqrt(np.min(np.einsum("nmj,nmj->nm", d, d), axis=1))
+        return out
+
+    if cap is None or not np.isfinite(cap) or cap <= 0.0:
+        return all_pairs()
+    # buckets of side b; a segment is listed in every bucket its box (grown by cap) touches
+    lo = np.minimum(points.min(axis=0), segs.reshape(-1, 2).min(axis=0)) - cap
+    hi = np.maximum(points.max(axis=0), segs.reshape(-1, 2).max(axis=0)) + cap
+    b = max(0.5 * cap, float(np.sqrt(np.prod(hi - lo) / (4.0 * n + 4.0 * m))))
+    nb = np.maximum(1, np.ceil((hi - lo) / b).astype(np.int64))
+
+    def cell(xy: np.ndarray) -> np.ndarray:
+        return np.clip(((xy - lo) / b).astype(np.int64), 0, nb - 1)
+
+    i0 = cell(np.minimum(segs[:, 0], segs[:, 1]) - cap)
+    i1 = cell(np.maximum(segs[:, 0], segs[:, 1]) + cap)
+    span = i1 - i0 + 1
+    cnt = span[:, 0] * span[:, 1]
+    if cnt.sum() > max(chunk, 64 * (n + m)):  # long segments: bucket lists would not pay
+        return all_pairs()
+    seg_of = np.repeat(np.arange(m), cnt)
+    k = np.arange(len(seg_of)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    bx = i0[seg_of, 0] + k // span[seg_of, 1]
+    by = i0[seg_of, 1] + k % span[seg_of, 1]
+    bucket = bx * nb[1] + by
+    order = np.argsort(bucket, kind="stable")
+    seg_sorted = seg_of[order]
+    ptr = np.zeros(nb[0] * nb[1] + 1, dtype=np.int64)
+    np.cumsum(np.bincount(bucket, minlength=nb[0] * nb[1]), out=ptr[1:])
+    pc = cell(points)
+    pb = pc[:, 0] * nb[1] + pc[:, 1]
+    c = ptr[pb + 1] - ptr[pb]
+    has = np.flatnonzero(c)
+    cs = np.cumsum(c[has])
+    first = 0
+    while first < len(has):  # chunks of whole points, about `chunk` pairs each
+        last = int(np.searchsorted(cs, (cs[first - 1] if first else 0) + chunk, side="right"))
+        last = max(last, first + 1)
+        pts = has[first:last]
+        cc = c[pts]
+        pi = np.repeat(pts, cc)
+        off = np.arange(len(pi)) - np.repeat(np.cumsum(cc) - cc, cc)
+        si = seg_sorted[np.repeat(ptr[pb[pts]], cc) + off]
+        d2 = measure(pi, si)
+        out[pts] = np.sqrt(np.minimum.reduceat(d2, np.cumsum(cc) - cc))
+        first = last
     return out
 
 
@@ -339,7 +414,7 @@ class FlowBase(Solver):
             pts[:, e] = 0.5 * (a + b)
         idx = np.argsort(~crosses, axis=1, kind="stable")[:, :2]
         segs = np.take_along_axis(pts, idx[:, :, None], axis=1)
-        d = segment_distance(self.coords[:, :2], self._segments_global(segs))
+        d = segment_distance(self.coords[:, :2], self._segments_global(segs), cap=self._clip())
         self.phi.x.array[:] = np.where(inside, 1.0, -1.0) * np.minimum(d, self._clip())
         self._update_phase()
 
@@ -354,7 +429,7 @@ class FlowBase(Solver):
         L = self._clip()
         near = np.abs(phi) < 2.0 * L
         new = np.sign(phi) * L
-        d = segment_distance(self.coords[near, :2], segs)
+        d = segment_distance(self.coords[near, :2], segs, cap=L)
         new[near] = np.where(phi[near] >= 0, 1.0, -1.0) * np.minimum(d, L)
         # the nodes of cut cells keep their values: the zero iso-line does not move
         # (re-distancing them too moved the bubble tip of Rayleigh-Taylor up by
