@@ -175,9 +175,10 @@ class LagrangianFlow(FlowBase):
         self.K: Any = None
         self.A_m: Any = None
         self.m_solver: fem.LinearSolver | None = None
-        a_rho = self.rho * g - ufl.grad(self.p) if grav else -ufl.grad(self.p)
-        self.L_f = compat.form(ufl.dot(a_rho, w) * dx)
-        self.b_f = compat.create_vector(self.L_f)
+        if not self.gravity_only:  # total pressure: the particles get g only, no source form
+            a_rho = self.rho * g - ufl.grad(self.p) if grav else -ufl.grad(self.p)
+            self.L_f = compat.form(ufl.dot(a_rho, w) * dx)
+            self.b_f = compat.create_vector(self.L_f)
         if self.light_gravity_only:
             # heavy particles: a_heavy = g - M^-1 int grad(p).w / rho_heavy (lumped M)
             self.force_heavy = compat.dolfinx.fem.Function(self.V)
