@@ -34,3 +34,39 @@ def test_readme_names_every_command_and_section():
         assert word in readme, word
     for sec in SCHEMA:
         assert f"[{sec}]" in readme or sec in ("flow",), sec
+
+
+def test_rt_reference_table_is_made_from_its_data(tmp_path, capsys):
+    """docs/data/rt-reference/table.md: its pfem2x rows follow from the stored summaries.
+
+    ``benchmarks/rt_reference.py`` re-reads the trimmed run summaries (no interFoam
+    rows: the peer's folder is not part of the repository) and must print the very
+    cells of the committed table; a bad source is one ``error:`` line and exit code 2.
+    """
+    import importlib.util
+
+    import pytest
+
+    spec = importlib.util.spec_from_file_location(
+        "rt_reference", ROOT / "benchmarks" / "rt_reference.py"
+    )
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    data = ROOT / "docs" / "data" / "rt-reference"
+    names = sorted(p.name for p in (data / "pfem2x").iterdir())
+    assert len(names) >= 10
+    runs = [a for n in names for a in ("--run", f"{n}={data / 'pfem2x' / n}")]
+    mod.main(["--stored", "--ref", "ls_aco0.5", *runs, "--md", str(tmp_path / "t.md")])
+    ours = {r.split("|")[1].strip(): r for r in (tmp_path / "t.md").read_text().splitlines()[2:]}
+    committed = {
+        r.split("|")[1].strip(): r for r in (data / "table.md").read_text().splitlines()[2:]
+    }
+    assert set(ours) == set(names) and set(ours) <= set(committed)
+    for n in names:  # the tip cells (columns 7-10), not the differences to another --ref
+        assert ours[n].split("|")[7:11] == committed[n].split("|")[7:11], n
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:
+        mod.main(["--stored", "--ref", "x", "--run", f"x={tmp_path / 'none'}"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: --run") and "summary.json" in err[0]
