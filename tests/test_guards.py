@@ -1,5 +1,6 @@
 """Divergence guards (runaway Courant number, kinetic energy) and flat memory over long runs."""
 
+import ctypes
 import gc
 import json
 import os
@@ -104,6 +105,15 @@ RSS_BOUND = 8.0e6
 
 
 def _rss() -> float:
+    """Resident set size in bytes, after giving freed heap back to the OS.
+
+    Without the trim, heap that earlier tests in this process freed but glibc kept (large
+    NumPy temporaries raise its mmap threshold) is reused first and hides growth.
+    """
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc
+        pass
     with open("/proc/self/statm") as f:
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
 
