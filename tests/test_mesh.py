@@ -85,7 +85,7 @@ def _owned_centroids(domain):
 
 
 @pytest.mark.mpi
-@pytest.mark.parametrize("diagonal", ["right", "crossed"])
+@pytest.mark.parametrize("diagonal", ["right", "crossed", "left/right"])
 def test_partitions_are_deterministic_strips_or_a_grid(diagonal):
     """Default: strips of rows; mesh.partition = [size, 1]: columns. Same cells every time."""
     comm = MPI.COMM_WORLD
