@@ -11,7 +11,8 @@ COMMON=(--set output.every=0 --set output.png=false --set output.fields=false
         --set output.particles=false --quiet --overwrite)
 SIGNM='phases.heavy.region="y > -0.1*d*cos(2*pi*x/d)"'   # spike on the axis, bubbles at the walls
 TAU2=(--set time.t_end=2.8284272)                         # tau = 2 (the 200 x 800 runs)
-run() { name=$1; shift; echo "$(date +%T) $name"; "$PY" -m pfem2x run rayleigh-taylor "$@" "${COMMON[@]}" --out "$OUT/pfem2x/$name"; }
+R=(--set mesh.diagonal=right)   # the runs of session 4 before the scene moved to left/right
+run() { name=$1; shift; echo "$(date +%T) $name"; "$PY" -m pfem2x run rayleigh-taylor "${R[@]}" "$@" "${COMMON[@]}" --out "$OUT/pfem2x/$name"; }
 # level set at a true Courant number <= 0.5 (adaptive dt), three grids, both signs
 run ls50_aco0.5   --set method.frame=eulerian --set time.courant=0.5 --set time.adaptive=true --set "mesh.cells=[50,200]"
 run ls_aco0.5     --set method.frame=eulerian --set time.courant=0.5 --set time.adaptive=true
@@ -29,6 +30,12 @@ run ls50_w0.75    "${L50[@]}" --set flow.interface_width=0.75
 run ls50_w3       "${L50[@]}" --set flow.interface_width=3.0
 run ls50_noreinit "${L50[@]}" --set flow.reinit_every=0
 run ls50_nosupg   "${L50[@]}" --set method.supg=false
+# the mirror-symmetric mesh (the scene's default now)
+R=()
+run ls_lr_aco0.5 --set method.frame=eulerian --set time.courant=0.5 --set time.adaptive=true
+run pf_lr_co0.5  --set time.courant=0.5
+run ls_lr_co4    --set method.frame=eulerian --set time.courant=4
+run pf_lr_co8    --set time.courant=8
 # interFoam (OpenFOAM v1912): centred spike at dt = 0.001, and 200 x 800 at dt = 0.004 to t = 2.9
 WORK=$(mktemp -d)
 cd "$WORK"
