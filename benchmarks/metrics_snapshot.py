@@ -88,7 +88,7 @@ def compare(before: Path, after: Path, rtol: float) -> int:
     a = json.loads(before.read_text(encoding="utf-8"))
     b = json.loads(after.read_text(encoding="utf-8"))
     bad = 0
-    print(f"| run | status | steps | metrics | max rel. difference |\n|---|---|---|---|---|")
+    print("| run | status | steps | metrics | max rel. difference |\n|---|---|---|---|---|")
     for key in sorted(set(a) | set(b)):
         ra, rb = a.get(key), b.get(key)
         if ra is None or rb is None:
@@ -96,9 +96,7 @@ def compare(before: Path, after: Path, rtol: float) -> int:
             bad += 1
             continue
         keys = set(ra["metrics"]) | set(rb["metrics"])
-        diff = max(
-            (_rel(ra["metrics"].get(k), rb["metrics"].get(k)) for k in keys), default=0.0
-        )
+        diff = max((_rel(ra["metrics"].get(k), rb["metrics"].get(k)) for k in keys), default=0.0)
         same = ra["status"] == rb["status"] and ra["steps"] == rb["steps"]
         bad += (not same) or diff > rtol
         print(f"| {key} | {rb['status']} | {rb['steps']} | {len(keys)} | {diff:.2e} |")
