@@ -171,3 +171,45 @@ def test_step_override_replaces_the_scene_choice():
     assert s["time"]["courant"] == 2.0 and s["time"]["dt"] is None
     with pytest.raises(SceneError, match="exactly one"):
         load_scene("gaussian-hill", ["time.dt=0.1", "time.courant=2"])
+
+
+UNSAFE_NAMES = {
+    "slash": "a/b",
+    "parent": "..",
+    "dot": ".",
+    "empty": "",
+    "nul": "x\\u0000y",
+    "long": "n" * 101,
+    "escape": "../../../escape",
+    "space": "a b",
+    "backslash": "a\\\\b",
+}
+
+
+@pytest.mark.parametrize("case", sorted(UNSAFE_NAMES))
+def test_unsafe_scene_name(case, tmp_path):
+    p = tmp_path / "scene.toml"
+    p.write_text(GOOD.replace('name = "tiny"', f'name = "{UNSAFE_NAMES[case]}"'))
+    assert_one_error(cli("check", str(p)), "scene.name")
+
+
+@pytest.mark.parametrize("cmd", ["run", "check"])
+@pytest.mark.parametrize("scene", ["scene.toml", "gaussian-hill"])
+def test_unsafe_scene_name_from_the_command_line(cmd, scene, tmp_path):
+    work = tmp_path / "deep" / "down" / "here"
+    work.mkdir(parents=True)
+    (work / "scene.toml").write_text(GOOD)
+    before = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*"))
+    quiet = ["--quiet"] if cmd == "run" else []
+    res = cli(cmd, scene, "--set", "scene.name=../../../escape", *quiet, cwd=work)
+    assert_one_error(res, "scene.name")
+    assert sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*")) == before
+
+
+def test_safe_scene_names():
+    from pfem2x.scene import SceneError, load_scene
+
+    assert load_scene("gaussian-hill", ["scene.name=Hill_2.v-3"]).name == "Hill_2.v-3"
+    assert load_scene("gaussian-hill", ["scene.name=" + "n" * 100]).name == "n" * 100
+    with pytest.raises(SceneError, match="scene.name"):
+        load_scene("gaussian-hill", ["scene.name=" + "n" * 101])

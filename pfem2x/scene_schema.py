@@ -1,0 +1,548 @@
+"""The scene schema: key checkers, the table of allowed keys and the generated reference.
+
+Every ``[section].key`` of a scene is a :class:`Key` in :data:`SCHEMA` (checker,
+default, doc line); :func:`schema_markdown` renders the table as docs/SCENES.md,
+with :data:`FRAME_KEYS` telling which frame reads which numerical switch.
+:mod:`pfem2x.scene` validates scenes against it.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = ["FRAME_KEYS", "SCHEMA", "Key", "SceneError", "schema_markdown", "scene_name"]
+
+
+#: Refuse scenes whose particle cloud alone would need more than this (bytes).
+MAX_PARTICLE_BYTES = 8 * 1024**3
+#: Refuse meshes with more cells than this (before allocating).
+MAX_CELLS = 20_000_000
+#: Estimated bytes per particle (positions, cell, fields, work arrays).
+BYTES_PER_PARTICLE = 160
+
+
+class SceneError(ValueError):
+    """A scene or CLI input is invalid; the message names the key or file."""
+
+
+# --------------------------------------------------------------------------
+# Schema
+# --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Key:
+    """One allowed key: a type checker, a default and a doc line."""
+
+    check: Callable[[str, Any], Any]
+    default: Any = None
+    required: bool = False
+    doc: str = ""
+
+
+def _type_name(v: Any) -> str:
+    return {
+        bool: "a boolean",
+        int: "an integer",
+        float: "a number",
+        str: "a string",
+        list: "a list",
+        dict: "a table",
+    }.get(type(v), type(v).__name__)
+
+
+def number(
+    lo: float | None = None, hi: float | None = None, lo_open: bool = False
+) -> Callable[[str, Any], float]:
+    """A real number, optionally within ``[lo, hi]`` (``(lo, hi]`` if ``lo_open``)."""
+
+    def check(key: str, v: Any) -> float:
+        if isinstance(v, bool) or not isinstance(v, int | float):
+            raise SceneError(f"{key}: expected a number, got {_type_name(v)} {v!r}")
+        v = float(v)
+        if not math.isfinite(v):
+            raise SceneError(f"{key}: must be finite, got {v}")
+        if lo is not None and (v < lo or (lo_open and v <= lo)):
+            raise SceneError(f"{key}: must be {'>' if lo_open else '>='} {lo:g}, got {v:g}")
+        if hi is not None and v > hi:
+            raise SceneError(f"{key}: must be <= {hi:g}, got {v:g}")
+        return v
+
+    return check
+
+
+def integer(lo: int | None = None, hi: int | None = None) -> Callable[[str, Any], int]:
+    """An integer, optionally within ``[lo, hi]``."""
+
+    def check(key: str, v: Any) -> int:
+        if isinstance(v, bool) or not isinstance(v, int):
+            if isinstance(v, float) and v.is_integer():
+                v = int(v)
+            else:
+                raise SceneError(f"{key}: expected an integer, got {_type_name(v)} {v!r}")
+        if lo is not None and v < lo:
+            raise SceneError(f"{key}: must be >= {lo}, got {v}")
+        if hi is not None and v > hi:
+            raise SceneError(f"{key}: must be <= {hi}, got {v}")
+        return int(v)
+
+    return check
+
+
+def boolean(key: str, v: Any) -> bool:
+    """A boolean."""
+    if not isinstance(v, bool):
+        raise SceneError(f"{key}: expected true or false, got {_type_name(v)} {v!r}")
+    return v
+
+
+def string(key: str, v: Any) -> str:
+    """A string."""
+    if not isinstance(v, str):
+        raise SceneError(f"{key}: expected a string, got {_type_name(v)} {v!r}")
+    return v
+
+
+def choice(*options: str) -> Callable[[str, Any], str]:
+    """One of ``options``."""
+
+    def check(key: str, v: Any) -> str:
+        string(key, v)
+        if v not in options:
+            near = difflib.get_close_matches(v, options, n=1)
+            hint = f" (did you mean {near[0]!r}?)" if near else ""
+            raise SceneError(f"{key}: {v!r} is not one of {', '.join(options)}{hint}")
+        return v
+
+    return check
+
+
+def expr_text(key: str, v: Any) -> str | float:
+    """An expression string or a number (compiled later, once params are known)."""
+    if isinstance(v, bool) or not isinstance(v, str | int | float):
+        raise SceneError(
+            f"{key}: expected an expression string or a number, got {_type_name(v)} {v!r}"
+        )
+    return v
+
+
+def list_of(
+    item: Callable[[str, Any], Any], min_len: int = 1, max_len: int = 3
+) -> Callable[[str, Any], list]:
+    """A list of ``min_len..max_len`` items each checked by ``item``."""
+
+    def check(key: str, v: Any) -> list:
+        if not isinstance(v, list):
+            raise SceneError(f"{key}: expected a list, got {_type_name(v)} {v!r}")
+        if not (min_len <= len(v) <= max_len):
+            raise SceneError(f"{key}: expected {min_len}..{max_len} entries, got {len(v)}")
+        return [item(f"{key}[{i}]", x) for i, x in enumerate(v)]
+
+    return check
+
+
+def partition_check(key: str, v: Any) -> str | list[int]:
+    """``"rows"``, ``"columns"`` or a ``[px, py]`` grid."""
+    if isinstance(v, str):
+        return choice("rows", "columns")(key, v)
+    if not isinstance(v, list):
+        raise SceneError(f'{key}: expected "rows", "columns" or [px, py], got {v!r}')
+    return list_of(integer(1, 100_000), 2, 2)(key, v)
+
+
+def bounds_check(key: str, v: Any) -> list[list[float]]:
+    """``[lo, hi]`` corners: numbers (interval) or equal-length lists of numbers."""
+    if not isinstance(v, list) or len(v) != 2:
+        raise SceneError(f"{key}: expected [lo, hi], got {v!r}")
+    out = []
+    for i, c in enumerate(v):
+        c = c if isinstance(c, list) else [c]
+        out.append(list_of(number(), 1, 3)(f"{key}[{i}]", c))
+    if len(out[0]) != len(out[1]):
+        raise SceneError(f"{key}: lo and hi have different lengths")
+    if any(hi <= lo for lo, hi in zip(out[0], out[1], strict=True)):
+        raise SceneError(f"{key}: every hi must exceed its lo, got {v!r}")
+    return out
+
+
+def cells_check(key: str, v: Any) -> list[int]:
+    """Cells per direction: an integer or a list of integers, each >= 1."""
+    v = v if isinstance(v, list) else [v]
+    return list_of(integer(1, MAX_CELLS), 1, 3)(key, v)
+
+
+def times_check(key: str, v: Any) -> list[float]:
+    """A list of times (>= 0)."""
+    return list_of(number(0.0), 0, 1000)(key, v)
+
+
+#: Longest ``scene.name`` (it names the default output folder ``runs/NAME``).
+MAX_NAME_LENGTH = 100
+_NAME_RE = re.compile(r"[A-Za-z0-9._-]+")
+
+
+def scene_name(key: str, v: Any) -> str:
+    """A safe single path component: letters, digits, ``-``, ``_``, ``.``; not ``.`` or ``..``."""
+    string(key, v)
+    if not v:
+        raise SceneError(f"{key}: must not be empty")
+    if len(v) > MAX_NAME_LENGTH:
+        raise SceneError(f"{key}: longer than {MAX_NAME_LENGTH} characters ({len(v)})")
+    if v in (".", "..") or not _NAME_RE.fullmatch(v):
+        raise SceneError(
+            f"{key}: {v[:40]!r} is not a safe folder name "
+            "(letters, digits, '-', '_', '.'; not '.' or '..')"
+        )
+    return v
+
+
+#: Boundary kinds of ``[flow]`` box sides, and the side names.
+FLOW_BOUNDARIES = ("slip", "noslip", "inflow", "outflow")
+FLOW_SIDES = ("left", "right", "bottom", "top", "front", "back")
+#: Keys of a ``[phases.NAME]`` table.
+PHASE_KEYS = ("density", "viscosity", "region")
+
+SCHEMA: dict[str, dict[str, Key]] = {
+    "scene": {
+        "name": Key(
+            scene_name,
+            required=True,
+            doc="scene name, the default output folder runs/NAME: letters, digits, -, _, . "
+            f"(not . or ..), at most {MAX_NAME_LENGTH} characters",
+        ),
+        "description": Key(string, "", doc="one line shown by `pfem2x scenes`"),
+        "physics": Key(choice("transport", "flow"), "transport", doc="which equations"),
+        "case": Key(string, "", doc="built-in case diagnostics (e.g. zalesak, manufactured-1d)"),
+    },
+    "mesh": {
+        "kind": Key(choice("interval", "rectangle", "box", "gmsh"), required=True),
+        "bounds": Key(bounds_check, doc="[lo, hi] corners"),
+        "cells": Key(cells_check, doc="cells per direction"),
+        "diagonal": Key(choice("right", "left", "crossed", "left/right", "right/left"), "right"),
+        "file": Key(string, doc="gmsh .geo/.msh file (kind = gmsh)"),
+        "periodic": Key(list_of(boolean, 1, 3), doc="one bool per axis"),
+        "partition": Key(
+            partition_check,
+            doc="MPI: rows (strips of rows), columns (rectangle: strips of columns) or "
+            "[px, py] grid of sub-rectangles (rectangle; px*py = ranks); default rows",
+        ),
+    },
+    "effects": {
+        "advection": Key(boolean, False),
+        "diffusion": Key(boolean, False),
+        "source": Key(boolean, False),
+        "reaction": Key(boolean, False),
+        "gravity": Key(boolean, False),
+        "viscosity": Key(boolean, False),
+        "two_phase": Key(boolean, False),
+    },
+    "time": {
+        "t_end": Key(number(0.0, lo_open=True), required=True),
+        "dt": Key(number(0.0, lo_open=True)),
+        "courant": Key(number(0.0, 1000.0, lo_open=True)),
+        "max_steps": Key(integer(1), 10_000_000),
+        "adaptive": Key(boolean, False, doc="re-evaluate dt every step from time.courant"),
+        "max_courant": Key(
+            number(0.0),
+            doc="a Courant number above this is divergence (default 50 x time.courant, "
+            "or 1000 with time.dt; 0: no check)",
+        ),
+        "max_energy_growth": Key(
+            number(0.0),
+            100.0,
+            doc="kinetic energy above this factor x max(initial, peak, reference) is "
+            "divergence (0: no check)",
+        ),
+    },
+    "method": {
+        "frame": Key(choice("lagrangian", "eulerian", "characteristic"), "eulerian"),
+        "particles_per_cell": Key(integer(1, 10_000), 8),
+        "min_particles_per_cell": Key(integer(0, 10_000), 0),
+        "max_particles_per_cell": Key(integer(0, 100_000), 0),
+        "projection": Key(choice("auto", "linear", "average"), "auto"),
+        "substep_courant": Key(number(0.0, 10.0, lo_open=True), 0.5),
+        "substep_gradient": Key(number(0.0, 10.0), 0.1),
+        "source_integration": Key(
+            choice("path", "theta"),
+            "path",
+            doc="transport source along particle paths: path = q(x_p(s), s) at the sub-step "
+            "times; theta = eq. 2.9, (1-theta) q frozen at t^n along the path + theta q^{n+1}",
+        ),
+        "theta": Key(number(0.0, 1.0), 0.5),
+        "supg": Key(boolean, False),
+        "preconditioner": Key(choice("auto", "hypre", "gamg", "jacobi", "lu", "none"), "auto"),
+        "seed": Key(integer(0), 1),
+    },
+    "output": {
+        "every": Key(number(0.0), 0.0, doc="time between field outputs (0: start and end only)"),
+        "fields": Key(boolean, True),
+        "particles": Key(boolean, True),
+        "png": Key(boolean, True),
+        "png_times": Key(times_check, doc="times at which PNG snapshots are written"),
+        "csv": Key(boolean, True),
+        "checkpoint_every": Key(
+            integer(0), 0, doc="write a restart checkpoint every N steps (0: only on a signal)"
+        ),
+    },
+    "transport": {
+        "field": Key(string, "T"),
+        "velocity": Key(list_of(expr_text, 1, 3)),
+        "kappa": Key(expr_text, 0.0),
+        "source": Key(expr_text, 0.0),
+        "reaction": Key(expr_text, 0.0),
+        "initial": Key(expr_text, 0.0),
+        "exact": Key(expr_text),
+        "boundary_value": Key(expr_text, doc="Dirichlet value on the non-periodic boundary"),
+    },
+    "flow": {
+        "gravity": Key(list_of(number(), 1, 3), doc="gravity vector (effects.gravity)"),
+        "velocity_scale": Key(expr_text, 0.0, doc="speed for time.courant while at rest"),
+        "initial_velocity": Key(list_of(expr_text, 1, 3), doc="initial velocity (default 0)"),
+        "time_factor": Key(expr_text, 1.0, doc="reported time tau = t * time_factor"),
+        "walls": Key(choice(*FLOW_BOUNDARIES), "slip", doc="kind of every box side not named"),
+        **{s: Key(choice(*FLOW_BOUNDARIES), doc=f"{s} box side") for s in FLOW_SIDES},
+        "inflow_velocity": Key(list_of(expr_text, 1, 3), doc="velocity on inflow sides"),
+        "interface_width": Key(number(0.0, lo_open=True), 1.5, doc="smoothing half-width / H"),
+        "reinit_every": Key(integer(0), 1, doc="level-set redistancing every N steps (0: never)"),
+        "max_speed": Key(expr_text, 0.0, doc="|u| above this is divergence (0: no check)"),
+        "extra_pass": Key(boolean, False, doc="PFEM-2: second pass with theta = 1/2"),
+        "pic_fraction": Key(
+            number(0.0, 1.0),
+            0.0,
+            doc="PFEM-2: blend of particle velocities towards the mesh velocity per step "
+            "(0 = pure increments, FLIP)",
+        ),
+        "pic_fraction_light": Key(
+            number(0.0, 1.0),
+            0.0,
+            doc="PFEM-2, two phases: pic_fraction of the light phase (no region, e.g. air)",
+        ),
+        "light_source": Key(
+            choice("full", "gravity"),
+            "full",
+            doc="PFEM-2, two phases: explicit particle source: mixture g - grad(p)/rho for "
+            "all (full), or g for the light phase and g - grad(p)/rho_heavy for the heavy "
+            "one (gravity; for large density ratios)",
+        ),
+        "mass_weighted": Key(
+            boolean,
+            False,
+            doc="PFEM-2, two phases: project the particle velocity to the nodes weighted by "
+            "the particle density (sum rho u / sum rho; for large density ratios)",
+        ),
+        "pressure_step": Key(
+            choice("increment", "total"),
+            "increment",
+            doc="increment: the explicit source has -grad(p^n)/rho and the pressure step "
+            "solves the increment (paper); total: the explicit source is gravity only and "
+            "the pressure step solves the whole pressure each step (non-incremental; "
+            "energy-stable at large density ratios, first order in dt)",
+        ),
+        "correction": Key(
+            choice("velocity", "momentum"),
+            "velocity",
+            doc="velocity correction after the pressure step (both flow frames): velocity = "
+            "u -= dt M^-1 int grad(dp).w / rho with the plain lumped mass M (the pressure "
+            "equation's own 1/rho; conserves phase volumes at large density ratios); "
+            "momentum = u -= dt M_rho^-1 int grad(dp).w with the lumped mass M_rho weighted "
+            "by the current density",
+        ),
+        "rtol": Key(number(0.0, 1.0, lo_open=True), 1e-8, doc="linear solver tolerance"),
+        "quadrature_degree": Key(integer(1, 20), 4, doc="quadrature degree of the flow forms"),
+    },
+}
+#: Meanings of keys whose ``Key`` has no doc line (kept here to keep the schema readable).
+_DOCS = {
+    "mesh.kind": "structured interval / rectangle (triangles) / box (tetrahedra), or a gmsh file",
+    "mesh.diagonal": "how rectangle cells are split into triangles",
+    "effects.advection": "transport: V.grad T (needs transport.velocity)",
+    "effects.diffusion": "transport: div(kappa grad T)",
+    "effects.source": "transport: the source q",
+    "effects.reaction": "transport: the reaction term -c T",
+    "effects.gravity": "flow: the body force flow.gravity",
+    "effects.viscosity": "flow: viscous stresses",
+    "effects.two_phase": "flow: two phases with [phases.*]",
+    "time.t_end": "end time (solver units)",
+    "time.dt": "fixed time step (exactly one of dt and courant)",
+    "time.courant": "time step from Co = max|V| dt / H, H the shortest cell edge",
+    "time.max_steps": "refuse runs with more steps",
+    "method.frame": "lagrangian = PFEM-2 particles; eulerian = FEM baseline; characteristic = "
+    "characteristic Galerkin (one particle per node)",
+    "method.particles_per_cell": "particles seeded per cell (lagrangian)",
+    "method.min_particles_per_cell": "add particles in cells with fewer (0: no control)",
+    "method.max_particles_per_cell": "remove particles from cells with more (0: no control)",
+    "method.projection": "particles -> mesh: linear-exact weighted least squares, or the "
+    "paper's shape-function average; auto = linear for scalar transport, average for the "
+    "flow velocity (the linear fit passes the FLIP velocity's sub-cell noise on to the mesh: "
+    "Rayleigh-Taylor 100x400 diverged at Courant 4)",
+    "method.substep_courant": "cells a particle may cross per X-IVAS sub-step",
+    "method.substep_gradient": "also limit a sub-step h by h |grad u|_cell <= this "
+    "(P1 velocities; the turning per sub-step; 0: off)",
+    "method.theta": "theta-method weight (0 explicit, 1/2 Crank-Nicolson, 1 implicit) of every "
+    "term (eulerian) or of diffusion and reaction on the mesh (characteristic, lagrangian)",
+    "method.supg": "SUPG stabilisation of convection (eulerian)",
+    "method.preconditioner": "linear solver preconditioner (auto: hypre if PETSc has it, "
+    "else gamg; ILU for non-symmetric systems)",
+    "method.seed": "random seed of particle seeding (results do not depend on the rank count)",
+    "output.fields": "write fields.xdmf",
+    "output.particles": "write particles.pvd (lagrangian frames)",
+    "output.png": "write PNG snapshots",
+    "output.csv": "write diagnostics.csv",
+    "transport.field": "name of the transported field",
+    "transport.velocity": "velocity components (expressions of x, y, z, t)",
+    "transport.kappa": "diffusivity (effects.diffusion)",
+    "transport.source": "source q (effects.source)",
+    "transport.reaction": "reaction coefficient c (effects.reaction)",
+    "transport.initial": "initial field",
+    "transport.exact": "exact solution: enables l2_error and l2_error_time_avg",
+}
+for _dotted, _doc in _DOCS.items():
+    _sec, _key = _dotted.split(".")
+    if not SCHEMA[_sec][_key].doc:
+        SCHEMA[_sec][_key] = Key(
+            SCHEMA[_sec][_key].check, SCHEMA[_sec][_key].default, SCHEMA[_sec][_key].required, _doc
+        )
+
+#: ``[flow]`` keys read by both flow frames.
+FLOW_COMMON_KEYS = (
+    *(f"flow.{k}" for k in ("gravity", "velocity_scale", "initial_velocity", "time_factor")),
+    "flow.walls",
+    *(f"flow.{s}" for s in FLOW_SIDES),
+    *(f"flow.{k}" for k in ("max_speed", "pressure_step", "correction", "rtol")),
+)
+_PARTICLES = (
+    "method.particles_per_cell",
+    "method.min_particles_per_cell",
+    "method.max_particles_per_cell",
+    "method.projection",
+    "method.substep_courant",
+    "method.substep_gradient",
+    "method.seed",
+)
+#: Which frame reads which numerical switch: physics → frame → ``section.key``
+#: (besides :data:`FLOW_COMMON_KEYS` for flow).
+FRAME_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
+    "transport": {
+        "eulerian": ("method.theta", "method.supg", "method.preconditioner"),
+        "characteristic": (
+            "method.theta",
+            "method.source_integration",
+            "method.substep_courant",
+            "method.preconditioner",
+        ),
+        "lagrangian": (
+            *_PARTICLES,
+            "method.theta",
+            "method.source_integration",
+            "method.preconditioner",
+        ),
+    },
+    "flow": {
+        "eulerian": (
+            "method.supg",
+            "method.preconditioner",
+            "flow.interface_width",
+            "flow.reinit_every",
+            "flow.quadrature_degree",
+            "flow.inflow_velocity",
+        ),
+        "lagrangian": (
+            *_PARTICLES,
+            "method.preconditioner",
+            "flow.pic_fraction",
+            "flow.pic_fraction_light",
+            "flow.light_source",
+            "flow.mass_weighted",
+            "flow.extra_pass",
+        ),
+    },
+}
+
+#: Sections whose keys are free-form.
+FREE_SECTIONS = {"params", "variants", "phases", "case"}
+
+
+# --------------------------------------------------------------------------
+# Reference documentation (docs/SCENES.md is generated from the schema)
+# --------------------------------------------------------------------------
+def _kind(check: Callable[[str, Any], Any]) -> str:
+    base = getattr(check, "__qualname__", "").split(".")[0]
+    cells = [c.cell_contents for c in (getattr(check, "__closure__", None) or ())]
+    if base == "choice":
+        opts = next((c for c in cells if isinstance(c, tuple)), ())
+        return " \\| ".join(f"`{o}`" for o in opts)
+    if base == "list_of":
+        inner = next((c for c in cells if callable(c)), None)
+        return f"list of {_kind(inner)}" if inner else "list"
+    names = {
+        "number": "number",
+        "integer": "integer",
+        "boolean": "boolean",
+        "string": "string",
+        "expr_text": "expression or number",
+        "bounds_check": "[lo, hi] corners",
+        "cells_check": "integer or list of integers",
+        "times_check": "list of times",
+        "scene_name": "string (folder name)",
+    }
+    return names.get(base, base or "value")
+
+
+def schema_markdown() -> str:
+    """Every scene key with its type, default and meaning, as markdown (docs/SCENES.md)."""
+    lines = [
+        "# Scene keys",
+        "",
+        "Generated from `pfem2x/scene_schema.py` by `python -m pfem2x.scene > docs/SCENES.md`",
+        "(a test checks that this file is current). Expressions: see README.md.",
+        "",
+    ]
+    for sec, keys in SCHEMA.items():
+        lines += [f"## [{sec}]", "", "| key | type | default | meaning |", "|---|---|---|---|"]
+        for k, spec in keys.items():
+            default = (
+                "**required**"
+                if spec.required
+                else ("" if spec.default is None else f"`{spec.default!r}`")
+            )
+            doc = spec.doc.replace("|", "\\|")
+            lines.append(f"| `{sec}.{k}` | {_kind(spec.check)} | {default} | {doc} |")
+        lines.append("")
+    lines += [
+        "## [phases.NAME] (flow)",
+        "",
+        "| key | type | default | meaning |",
+        "|---|---|---|---|",
+        "| `density` | number > 0 | **required** | the phase's density |",
+        "| `viscosity` | number >= 0 | `0.0` | dynamic viscosity |",
+        "| `region` | expression | | where the phase is at t = 0 (truthy); exactly one of two |",
+        "",
+        "## [params], [variants.NAME]",
+        "",
+        "`[params]`: named numbers usable in every expression (identifiers, not `x y z t`, not",
+        "a function or constant name). `[variants.NAME]`: dotted keys applied by",
+        "`--variant NAME` before any `--set`.",
+        "",
+    ]
+    return "\n".join(lines + _frames_markdown())
+
+
+def _frames_markdown() -> list[str]:
+    lines = [
+        "## Numerical switches by frame",
+        "",
+        "Which `method.*` and `flow.*` keys each frame reads (`method.frame` picks the frame;",
+        "a key not listed for a frame is validated but has no effect there).",
+        "",
+        "| physics | frame | reads |",
+        "|---|---|---|",
+    ]
+    for physics, frames in FRAME_KEYS.items():
+        for frame, keys in frames.items():
+            lines.append(f"| {physics} | `{frame}` | {', '.join(f'`{k}`' for k in keys)} |")
+    common = ", ".join(f"`{k}`" for k in FLOW_COMMON_KEYS)
+    lines += ["", f"Both flow frames also read {common}.", ""]
+    return lines
