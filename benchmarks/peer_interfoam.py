@@ -42,7 +42,8 @@ Modes (runs are sequential; threads pinned to 1 per process):
   unit t x 3.5355), and are labelled ``stored``.
 
 Subsets: ``--grids 100x400 --courants 8 --of-steps co0.5 dt0.0025`` (``--of-steps none``:
-no interFoam runs). Every run is stopped after ``--tlim`` s; a 2-rank pfem2x run after
+no interFoam runs). ``--pfem2x-set KEY=VALUE`` (repeatable) passes a further ``--set`` to every
+pfem2x run. Every run is stopped after ``--tlim`` s; a 2-rank pfem2x run after
 3 x its serial wall + 60 s.
 
 Writes ``--json`` (all runs and the derived figures), ``--md`` (markdown tables for
@@ -197,8 +198,16 @@ def machine() -> dict[str, Any]:
 
 # --------------------------------------------------------------------------- pfem2x
 def run_pfem2x(
-    nx: int, ny: int, courant: float, np_: int, work: Path, rep: int, tlim: float
+    nx: int,
+    ny: int,
+    courant: float,
+    np_: int,
+    work: Path,
+    rep: int,
+    tlim: float,
+    extra: list[str] | None = None,
 ) -> dict[str, Any]:
+    """One ``pfem2x run`` of the scene; ``extra`` are further ``KEY=VALUE`` settings."""
     name = f"pf_{nx}x{ny}_c{courant:g}_np{np_}_r{rep}"
     out = work / name
     cmd = [
@@ -211,6 +220,8 @@ def run_pfem2x(
         "--set", "output.png=false",
         "--out", str(out), "--overwrite", "--quiet",
     ]  # fmt: skip
+    for kv in extra or []:
+        cmd += ["--set", kv]
     if np_ > 1:
         root = ["--allow-run-as-root"] if os.geteuid() == 0 else []
         cmd = ["mpirun", *root, "-n", str(np_), *cmd]
@@ -669,6 +680,13 @@ def main() -> None:
     ap.add_argument("--stored", type=Path, default=STORED_DIR,
                     help="stored interFoam runs (tips_all.csv, runs.csv)")  # fmt: skip
     ap.add_argument("--tlim", type=int, default=1500, help="time limit of one run, s")
+    ap.add_argument(
+        "--pfem2x-set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a further --set for every pfem2x run, e.g. mesh.diagonal=right",
+    )
     ap.add_argument("--grids", nargs="+", metavar="GRID", help="only these, e.g. 100x400")
     ap.add_argument("--courants", nargs="+", type=float, help="only these pfem2x Courants")
     ap.add_argument("--of-steps", nargs="+", help="only these interFoam steps, e.g. dt0.0025")
@@ -742,11 +760,11 @@ def main() -> None:
             ]  # fmt: skip
             if np_ > 1 and serial:
                 tlim = min(tlim, 3.0 * serial[0] + 60.0)
-            reps = [run_pfem2x(nx, ny, c, np_, args.work, 0, tlim)]
+            reps = [run_pfem2x(nx, ny, c, np_, args.work, 0, tlim, args.pfem2x_set)]
             say(reps[0])
             if reps[0].get("status") == "ok" and reps[0]["wall"] < SHORT_RUN and np_ == 1:
                 for k in range(1, repeats):
-                    reps.append(run_pfem2x(nx, ny, c, np_, args.work, k, tlim))
+                    reps.append(run_pfem2x(nx, ny, c, np_, args.work, k, tlim, args.pfem2x_set))
                     say(reps[-1])
             runs.append(median_runs(reps) if len(reps) > 1 else reps[0])
         if grid in skip:
