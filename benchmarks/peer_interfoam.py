@@ -8,22 +8,22 @@ Usage::
 Both codes solve the same problem (scene ``rayleigh-taylor``: [-0.5, 0.5] x [-2, 2],
 rho 3 over 1, mu = 1e-3, g = 1, slip walls, interface y = 0.1 cos(2 pi x)) to Tryggvason
 time tau = t sqrt(A g / d) = 2.5 (t = 3.5355). interFoam (OpenFOAM v1912, ``apt-get
-install openfoam``) cases come from the peer case generator ``make_case.py`` in
-``--peer`` (called by path, not copied), with NX x NY hexahedra; pfem2x runs with
+install openfoam``) cases are written by ``benchmarks/interfoam_case.py`` with NX x NY
+hexahedra and the damBreak tutorial numerics; pfem2x runs with
 ``--set mesh.cells=[NX,NY]`` (NX x NY squares split in 2 triangles) in its default
 PFEM-2 lagrangian frame, fixed dt from ``time.courant`` and ``flow.velocity_scale``.
 
 Error: the tip positions (spike = lowest, bubble = highest point of the interface) are
 interpolated linearly in time at tau = 1, 1.5, 2, 2.5 and compared with the reference
-interFoam 100 x 400, dt = 0.001 (``tips_all.csv`` columns ``r100_dt0.001:spike/bubble``
-against ``tT``). ``err`` = max over those four tau and both tips of |y - y_ref|;
-``err2`` = the same up to tau = 2 only.
+interFoam 100 x 400, dt = 0.001 (``docs/data/rt-reference/interfoam/tips_all.csv``, columns
+``r100_dt0.001:spike/bubble`` against ``tT``). ``err`` = max over those four tau and both
+tips of |y - y_ref|; ``err2`` = the same up to tau = 2 only.
 
 Time: pfem2x = the whole ``pfem2x run`` process (start-up, JIT, mesh, stepping; wall
 clock and CPU of the child processes from ``getrusage``), its ``summary.json`` split
 (``timings``: particles / assembly / solve, ``step_wall_median``). interFoam = its own
 ``ClockTime`` (wall) / ``ExecutionTime`` (CPU, rank 0) at t = 3.5355 read from
-log.interFoam (the case runs on to t = 3.6, like the stored peer runs; blockMesh and
+log.interFoam (the case runs on to the first output time after it; blockMesh and
 decomposePar are not counted). Every run records /proc/loadavg before and after.
 
 Modes (runs are sequential; threads pinned to 1 per process):
@@ -37,13 +37,14 @@ Modes (runs are sequential; threads pinned to 1 per process):
   probe), 0.01, 0.005, 0.0025 and maxCo 0.5 on 2 ranks; pfem2x Courant 2, 4, 8 on 1 and
   2 ranks (35-45 minutes on an idle machine).
 * ``--skip-openfoam [GRID ...]``: no interFoam runs (on all grids, or on the grids
-  given, e.g. ``--skip-openfoam 100x400``); its tips and timings are taken from the peer's
-  stored ``results.csv`` (time to tau = 2.5 = stored time per unit t x 3.5355), and are
-  labelled ``stored``.
+  given, e.g. ``--skip-openfoam 100x400``); its tips and timings are taken from the stored
+  runs in ``docs/data/rt-reference/interfoam/runs.csv`` (time to tau = 2.5 = stored time per
+  unit t x 3.5355), and are labelled ``stored``.
 
 Subsets: ``--grids 100x400 --courants 8 --of-steps co0.5 dt0.0025`` (``--of-steps none``:
-no interFoam runs). Every run is stopped after ``--tlim`` s; a 2-rank pfem2x run after
-3 x its serial wall + 60 s (an intermittent deadlock in particle migration was seen).
+no interFoam runs). ``--pfem2x-set KEY=VALUE`` (repeatable) passes a further ``--set`` to every
+pfem2x run. Every run is stopped after ``--tlim`` s; a 2-rank pfem2x run after
+3 x its serial wall + 60 s.
 
 Writes ``--json`` (all runs and the derived figures), ``--md`` (markdown tables for
 docs/BENCHMARKS.md) and ``--plot`` (error against time, PNG); ``--from-json FILE``
@@ -72,8 +73,10 @@ from typing import Any
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-PEER = Path("/work/shared/peers/interfoam-rt")
-FOAM_BASHRC = "/usr/share/openfoam/etc/bashrc"
+STORED_DIR = ROOT / "docs" / "data" / "rt-reference" / "interfoam"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import interfoam_case  # noqa: E402  (benchmarks/interfoam_case.py)
+
 TAU_END = 2.5
 SQRT_A = math.sqrt(0.5)  # tau = t * sqrt(A g / d), A = 0.5, g = d = 1
 T_END = TAU_END / SQRT_A  # 3.5355339
@@ -100,9 +103,9 @@ def loadavg() -> list[float]:
     return [float(v) for v in Path("/proc/loadavg").read_text().split()[:3]]
 
 
-def reference(peer: Path) -> Tips:
+def reference(stored: Path) -> Tips:
     """Reference tips at TAUS from the stored interFoam 100 x 400, dt 0.001 history."""
-    with open(peer / "tips_all.csv") as f:
+    with open(stored / "tips_all.csv") as f:
         rows = list(csv.DictReader(f))
     tt = np.array([float(r["tT"]) for r in rows])
     out: Tips = {}
@@ -195,12 +198,20 @@ def machine() -> dict[str, Any]:
 
 # --------------------------------------------------------------------------- pfem2x
 def run_pfem2x(
-    nx: int, ny: int, courant: float, np_: int, work: Path, rep: int, tlim: float
+    nx: int,
+    ny: int,
+    courant: float,
+    np_: int,
+    work: Path,
+    rep: int,
+    tlim: float,
+    extra: list[str] | None = None,
 ) -> dict[str, Any]:
+    """One ``pfem2x run`` of the scene; ``extra`` are further ``KEY=VALUE`` settings."""
     name = f"pf_{nx}x{ny}_c{courant:g}_np{np_}_r{rep}"
     out = work / name
     cmd = [
-        str(ROOT / ".venv/bin/pfem2x"), "run", "rayleigh-taylor",
+        sys.executable, "-m", "pfem2x", "run", "rayleigh-taylor",
         "--set", f"mesh.cells=[{nx},{ny}]",
         "--set", f"time.courant={courant:g}",
         "--set", "output.every=0",
@@ -209,8 +220,11 @@ def run_pfem2x(
         "--set", "output.png=false",
         "--out", str(out), "--overwrite", "--quiet",
     ]  # fmt: skip
+    for kv in extra or []:
+        cmd += ["--set", kv]
     if np_ > 1:
-        cmd = ["mpirun", "--allow-run-as-root", "-n", str(np_), *cmd]
+        root = ["--allow-run-as-root"] if os.geteuid() == 0 else []
+        cmd = ["mpirun", *root, "-n", str(np_), *cmd]
     work.mkdir(parents=True, exist_ok=True)
     t = run_timed(cmd, work / f"{name}.log", tlim)
     rec: dict[str, Any] = {
@@ -282,36 +296,30 @@ def parse_foam_log(log: str) -> dict[str, Any]:
     }
 
 
-def read_foam_tips(case: Path, peer: Path) -> Tips | None:
-    subprocess.run(
-        [sys.executable, str(peer / "tips.py"), str(case), "--quiet"],
-        check=True,
-        stdout=subprocess.DEVNULL,
-    )
-    data = np.genfromtxt(case / "tips.csv", delimiter=",", names=True)
-    if data.size < 2:
+def read_foam_tips(case: Path) -> Tips | None:
+    """Tips at TAUS of a finished case (writes ``case/tips.csv``)."""
+    rows = interfoam_case.write_tips(case)
+    if len(rows) < 2:
         return None
-    return tips_at(data["tT"], data["y_spike"], data["y_bubble"])
+    return tips_at(rows[:, 1], rows[:, 2], rows[:, 3])
 
 
-def run_interfoam(
-    nx: int, ny: int, step: str, np_: int, work: Path, peer: Path, tlim: int
-) -> dict[str, Any]:
+def run_interfoam(nx: int, ny: int, step: str, np_: int, work: Path, tlim: int) -> dict[str, Any]:
     """One interFoam case; ``step`` is ``co<maxCo>`` (adaptive) or ``dt<deltaT>``."""
     name = f"of_{nx}x{ny}_{step}_np{np_}"
     case = work / name
     if case.exists():
         shutil.rmtree(case)
     work.mkdir(parents=True, exist_ok=True)
-    opt = ["--maxCo", step[2:]] if step.startswith("co") else ["--dt", step[2:]]
+    opt = ["--max-co", step[2:]] if step.startswith("co") else ["--dt", step[2:]]
     subprocess.run(
-        [sys.executable, str(peer / "make_case.py"), str(case), "--nx", str(nx),
-         "--ny", str(ny), *opt, "--nproc", str(max(np_, 2))],
+        [sys.executable, str(Path(interfoam_case.__file__)), "make", str(case),
+         "--nx", str(nx), "--ny", str(ny), *opt, "--nproc", str(max(np_, 2))],
         check=True, stdout=subprocess.DEVNULL,
     )  # fmt: skip
-    script = "Allrun-parallel" if np_ > 1 else "Allrun"
-    os.environ["TLIM"] = str(tlim)
-    t = run_timed(["bash", str(case / script)], work / f"{name}.log", tlim + 300)
+    run = [sys.executable, str(Path(interfoam_case.__file__)), "run", str(case)]
+    run += ["--np", str(np_), "--tlim", str(tlim)]
+    t = run_timed(run, work / f"{name}.log", tlim + 300)
     label = f"maxCo {step[2:]}" if step.startswith("co") else f"dt {step[2:]}"
     rec: dict[str, Any] = {
         "code": "interFoam", "grid": f"{nx}x{ny}", "cells": [nx, ny], "np": np_,
@@ -324,7 +332,7 @@ def run_interfoam(
     if "cpu_to_end" not in info:
         rec["status"] = f"unstable/failed (reached t = {info.get('t_last', 0):.3g})"
         return rec
-    tips = read_foam_tips(case, peer)
+    tips = read_foam_tips(case)
     rec.update(
         status="ok",
         steps=info["steps"],
@@ -344,7 +352,7 @@ def run_interfoam(
     return rec
 
 
-# stored peer runs: (grid, config label, np) -> case name in results.csv
+# stored interFoam runs: (grid, config label, np) -> case name in runs.csv
 STORED = {
     ("50x200", "maxCo 0.5", 1): "t050_co0.5",
     ("50x200", "maxCo 0.5", 2): "n050_co0.5_np2",
@@ -361,8 +369,8 @@ STORED = {
 }
 
 
-def stored_interfoam(peer: Path, grids: list[str]) -> list[dict[str, Any]]:
-    with open(peer / "results.csv") as f:
+def stored_interfoam(stored: Path, grids: list[str]) -> list[dict[str, Any]]:
+    with open(stored / "runs.csv") as f:
         rows = {r["case"]: r for r in csv.DictReader(f)}
     out = []
     for (grid, label, np_), name in STORED.items():
@@ -568,7 +576,7 @@ def tables(res: dict[str, Any]) -> str:
             )
         out.append("")
     if d["growth"]:
-        out.append("pfem2x cost growth per step, 50×200 → 100×400 (4× cells; limit 4.4):\n")
+        out.append("pfem2x cost growth per step, 50×200 → 100×400 (4× cells):\n")
         out.append("| pfem2x | s/step 50×200 | s/step 100×400 | ratio |")
         out.append("|---|---:|---:|---:|")
         for g in d["growth"]:
@@ -659,8 +667,8 @@ def main() -> None:
         "--skip-openfoam",
         nargs="*",
         metavar="GRID",
-        help="use the stored peer runs instead of running interFoam (on all grids, or on "
-        "the grids given, e.g. 100x400)",
+        help="use the stored interFoam runs instead of running interFoam (on all grids, or "
+        "on the grids given, e.g. 100x400)",
     )
     ap.add_argument("--json", type=Path, help="write all results here")
     ap.add_argument("--md", type=Path, help="write the markdown tables here")
@@ -669,8 +677,16 @@ def main() -> None:
     ap.add_argument("--time", choices=["cpu", "wall"], default="cpu",
                     help="time used for the speed ratios and the plot (default cpu)")  # fmt: skip
     ap.add_argument("--work", type=Path, default=ROOT / "benchmarks/_work/peer_interfoam")
-    ap.add_argument("--peer", type=Path, default=PEER, help="the interFoam peer folder")
+    ap.add_argument("--stored", type=Path, default=STORED_DIR,
+                    help="stored interFoam runs (tips_all.csv, runs.csv)")  # fmt: skip
     ap.add_argument("--tlim", type=int, default=1500, help="time limit of one run, s")
+    ap.add_argument(
+        "--pfem2x-set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a further --set for every pfem2x run, e.g. mesh.diagonal=right",
+    )
     ap.add_argument("--grids", nargs="+", metavar="GRID", help="only these, e.g. 100x400")
     ap.add_argument("--courants", nargs="+", type=float, help="only these pfem2x Courants")
     ap.add_argument("--of-steps", nargs="+", help="only these interFoam steps, e.g. dt0.0025")
@@ -708,9 +724,11 @@ def main() -> None:
     grids = list(plan_pf)
     skip = set() if args.skip_openfoam is None else set(args.skip_openfoam or grids)
     if set(grids) - skip and not Path("/usr/bin/interFoam").exists():
-        sys.exit("interFoam not found: apt-get install -y openfoam, or use --skip-openfoam")
+        print("error: interFoam not found: apt-get install -y openfoam, or use --skip-openfoam",
+              file=sys.stderr)  # fmt: skip
+        raise SystemExit(2)
 
-    ref = reference(args.peer)
+    ref = reference(args.stored)
     res: dict[str, Any] = {
         "machine": machine(),
         "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
@@ -732,7 +750,7 @@ def main() -> None:
     for grid in grids:
         nx, ny = (int(v) for v in grid.split("x"))
         for c, np_ in plan_pf[grid]:
-            # a 2-rank run may hang (seen in particle migration): limit it to 3x the serial wall
+            # bound a 2-rank run by 3x the serial wall (a hung rank must not stall the benchmark)
             tlim = float(args.tlim)
             serial = [
                 r["wall"]
@@ -742,21 +760,21 @@ def main() -> None:
             ]  # fmt: skip
             if np_ > 1 and serial:
                 tlim = min(tlim, 3.0 * serial[0] + 60.0)
-            reps = [run_pfem2x(nx, ny, c, np_, args.work, 0, tlim)]
+            reps = [run_pfem2x(nx, ny, c, np_, args.work, 0, tlim, args.pfem2x_set)]
             say(reps[0])
             if reps[0].get("status") == "ok" and reps[0]["wall"] < SHORT_RUN and np_ == 1:
                 for k in range(1, repeats):
-                    reps.append(run_pfem2x(nx, ny, c, np_, args.work, k, tlim))
+                    reps.append(run_pfem2x(nx, ny, c, np_, args.work, k, tlim, args.pfem2x_set))
                     say(reps[-1])
             runs.append(median_runs(reps) if len(reps) > 1 else reps[0])
         if grid in skip:
             continue
         for step, np_ in plan_of[grid]:
-            r = run_interfoam(nx, ny, step, np_, args.work, args.peer, args.tlim)
+            r = run_interfoam(nx, ny, step, np_, args.work, args.tlim)
             say(r)
             runs.append(r)
     if skip:
-        runs.extend(stored_interfoam(args.peer, [g for g in grids if g in skip]))
+        runs.extend(stored_interfoam(args.stored, [g for g in grids if g in skip]))
     res["machine"]["load_end"] = loadavg()
     res["derived"] = derive(runs, ref, args.time)
     report(res, args)

@@ -2,18 +2,17 @@
 
 Usage::
 
-    python benchmarks/rt_reference.py [--peer DIR] [--stored COL ...]
+    python benchmarks/rt_reference.py [--stored-dir DIR] [--stored COL ...]
         [--case NAME=DIR ...] [--run NAME=DIR ...] [--ref NAME]
         [--md FILE] [--json FILE]
 
 Sources of tip histories (spike = lowest, bubble = highest point of the interface,
 against Tryggvason time tau):
 
-* ``--stored COL``: a run of the peer's stored ``tips_all.csv`` (columns ``COL:spike`` /
-  ``COL:bubble`` against ``tT``), e.g. ``r100_dt0.001``;
-* ``--case NAME=DIR``: an interFoam case made by the peer's ``make_case.py`` and
-  post-processed by its ``tips.py`` (``DIR/tips.csv``, columns ``tT``, ``y_spike``,
-  ``y_bubble``);
+* ``--stored COL``: a stored interFoam run of ``docs/data/rt-reference/interfoam/tips_all.csv``
+  (columns ``COL:spike`` / ``COL:bubble`` against ``tT``), e.g. ``r100_dt0.001``;
+* ``--case NAME=DIR``: an interFoam case with its ``tips.csv`` (columns ``tau`` or ``tT``,
+  ``y_spike``, ``y_bubble``), as ``benchmarks/interfoam_case.py run`` / ``tips`` write it;
 * ``--run NAME=DIR``: a ``pfem2x run`` output folder (``summary.json``:
   ``metrics.tip_falling`` / ``tip_rising`` as ``[tau, y]``, plus frame, steps, dt,
   largest Courant number and CPU seconds).
@@ -21,8 +20,8 @@ against Tryggvason time tau):
 Every history is interpolated linearly in tau at 1, 1.5, 2, 2.5 (a source that does
 not reach a time gets no value there). ``d2`` / ``d25`` = the largest ``|y - y_ref|``
 over both tips up to tau = 2 / 2.5 against ``--ref`` (default: the stored
-``r100_dt0.001``, the issue's reference). Prints a markdown table; ``--md`` / ``--json``
-also write it.
+``r100_dt0.001``, interFoam 100 x 400 at dt = 0.001). Prints a markdown table; ``--md`` /
+``--json`` also write it.
 """
 
 from __future__ import annotations
@@ -38,7 +37,7 @@ import numpy as np
 
 TAUS = (1.0, 1.5, 2.0, 2.5)
 HERE = Path(__file__).resolve().parent
-DEFAULT_PEER = HERE.parent.parent / "shared" / "peers" / "interfoam-rt"
+STORED_DIR = HERE.parent / "docs" / "data" / "rt-reference" / "interfoam"
 
 
 def _fail(msg: str) -> None:
@@ -58,11 +57,11 @@ def _at(tau: np.ndarray, y: np.ndarray) -> list[float | None]:
     return [float(np.interp(t, tau, y)) if tau[0] <= t <= tau[-1] + tol else None for t in TAUS]
 
 
-def stored(peer: Path, col: str) -> dict[str, Any]:
-    """Tips of a stored peer run (``tips_all.csv``)."""
-    path = peer / "tips_all.csv"
+def stored(folder: Path, col: str) -> dict[str, Any]:
+    """Tips of a stored interFoam run (``tips_all.csv`` in ``folder``)."""
+    path = folder / "tips_all.csv"
     if not path.is_file():
-        _fail(f"--peer: {path} not found")
+        _fail(f"--stored-dir: {path} not found")
     with open(path) as f:
         rows = list(csv.DictReader(f))
     if f"{col}:spike" not in rows[0]:
@@ -74,15 +73,16 @@ def stored(peer: Path, col: str) -> dict[str, Any]:
 
 
 def foam_case(path: Path) -> dict[str, Any]:
-    """Tips of an interFoam case post-processed by the peer's ``tips.py``."""
+    """Tips of an interFoam case from its ``tips.csv``."""
     f = path / "tips.csv"
     if not f.is_file():
-        _fail(f"--case: {f} not found (run the peer's tips.py on the case first)")
+        _fail(f"--case: {f} not found (run benchmarks/interfoam_case.py tips on the case)")
     a = np.genfromtxt(f, delimiter=",", names=True)
+    tau = a["tau"] if "tau" in a.dtype.names else a["tT"]
     return {
         "code": "interFoam",
-        "spike": _at(a["tT"], a["y_spike"]),
-        "bubble": _at(a["tT"], a["y_bubble"]),
+        "spike": _at(tau, a["y_spike"]),
+        "bubble": _at(tau, a["y_bubble"]),
     }
 
 
@@ -142,7 +142,9 @@ def table(rows: dict[str, dict[str, Any]], ref: str) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--peer", type=Path, default=DEFAULT_PEER, help="stored interFoam runs")
+    ap.add_argument(
+        "--stored-dir", type=Path, default=STORED_DIR, help="stored interFoam runs (tips_all.csv)"
+    )
     ap.add_argument("--stored", nargs="*", default=["r100_dt0.001"], metavar="COL")
     ap.add_argument("--case", action="append", default=[], metavar="NAME=DIR")
     ap.add_argument("--run", action="append", default=[], metavar="NAME=DIR")
@@ -152,7 +154,7 @@ def main(argv: list[str] | None = None) -> None:
     a = ap.parse_args(argv)
     rows: dict[str, dict[str, Any]] = {}
     for col in a.stored:
-        rows[col] = stored(a.peer, col)
+        rows[col] = stored(a.stored_dir, col)
     for text in a.case:
         name, path = _pair(text, "--case")
         rows[name] = foam_case(path)

@@ -13,7 +13,7 @@
 # output (`interface/interface_t*.csv`) and the tip positions in
 # `summary.json`. This notebook-style script loads finished runs, overlays their
 # interfaces (matplotlib, and pyvista off-screen) and plots the tips against the
-# interFoam reference shipped in `shared/peers/`.
+# interFoam reference in `docs/data/rt-reference/interfoam/`.
 #
 # Point `RUNS` at your own run folders (e.g. made with
 # `pfem2x run rayleigh-taylor --set time.courant=8 --out runs/rt-co8`). Without
@@ -127,20 +127,16 @@ if comm.rank == 0:
 # %%
 import pfem2x  # noqa: E402
 
-# the peer data sits in shared/ beside the repository (or the current folder's parents)
-here = [Path(pfem2x.__file__).resolve().parents[2], Path.cwd(), *Path.cwd().parents]
-peer = next(
-    (p / "shared/peers/interfoam-rt/tips_all.csv" for p in here
-     if (p / "shared/peers/interfoam-rt/tips_all.csv").is_file()),
-    Path("missing"),
-)  # fmt: skip
+# the stored interFoam tip histories ship with the repository
+repo = Path(pfem2x.__file__).resolve().parents[1]
+reference = repo / "docs/data/rt-reference/interfoam/tips_all.csv"
 if comm.rank == 0:
     fig, ax = plt.subplots(figsize=(6, 4))
     for label, (fall, rise) in tips.items():
         ax.plot(fall[:, 0], fall[:, 1], label=f"{label} falling")
         ax.plot(rise[:, 0], rise[:, 1], "--", label=f"{label} rising")
-    if peer.is_file():
-        ref = np.genfromtxt(peer, delimiter=",", names=True)
+    if reference.is_file():
+        ref = np.genfromtxt(reference, delimiter=",", names=True)
         ax.plot(ref["tT"], ref["r100_dt0001spike"], "k:", label="interFoam 100x400")
         ax.plot(ref["tT"], ref["r100_dt0001bubble"], "k:")
     ax.set_xlabel("tau")

@@ -18,19 +18,17 @@
 # - characteristic Galerkin (`characteristic`: one "particle" per node),
 # - Eulerian P1 Galerkin, Crank-Nicolson (`eulerian`, θ = ½),
 #
-# and Eulerian runs at Courant 0.5 (plain Galerkin and SUPG). The scene has
-# no boundary condition (`transport.boundary_value`): the Lagrangian frames
-# need none (particles entering through the walls carry T = 0, the
-# characteristic feet stop at the wall), but the Eulerian Galerkin problem is
-# ill-posed without a value where the rotation flows in through the walls of
-# the square; it is shown as the scene stands (stopped by the runner's
-# divergence guard) and with `transport.boundary_value = 0`. The table gives the change
+# and Eulerian runs at Courant 0.5 (plain Galerkin and SUPG). The scene sets
+# `transport.boundary_value = 0`: T = 0 is carried in where the rotation enters
+# the square. The Lagrangian frames hardly need it (particles and characteristic
+# feet come from inside), the Eulerian Galerkin problem is ill-posed without it.
+# The table gives the change
 # of the disk's area {T ≥ 0.5}, the area of the symmetric difference with the
 # exact disk (relative to the disk's area), the L1 error of the field and the
 # wall time; the figure is the contour T = 0.5 after one and two revolutions
 # against the exact shape, one panel per method.
 #
-#     python demos/zalesak.py        # 9 min wall (shared 2-core machine, load ~5)
+#     python demos/zalesak.py        # about 10 min on one core
 #
 # Writes `zalesak.md`, `zalesak.csv` and `zalesak.png` under
 # `$PFEM2X_DEMO_OUT` (default `runs/demos/fig_5_2_zalesak/`). `PFEM2X_DEMO_SMALL=1`
@@ -61,14 +59,12 @@ REVS = (1,) if small else (1, 2)
 
 #: label -> (scene overrides, Courant number)
 EUL = ["method.frame=eulerian", "method.theta=0.5"]
-WALLS = ["transport.boundary_value=0"]  # T = 0 on the walls, where the rotation flows in
 METHODS: dict[str, tuple[list[str], float]] = {
     "PFEM-2": (["method.frame=lagrangian"], 4.5),
     "characteristic Galerkin": (["method.frame=characteristic"], 4.5),
-    "Eulerian θ=½, no inflow BC": (EUL, 4.5),
-    "Eulerian θ=½": (EUL + WALLS, 4.5),
-    "Eulerian θ=½, Co 0.5": (EUL + WALLS, 0.5),
-    "Eulerian θ=½ SUPG, Co 0.5": (EUL + WALLS + ["method.supg=true"], 0.5),
+    "Eulerian θ=½": (EUL, 4.5),
+    "Eulerian θ=½, Co 0.5": (EUL, 0.5),
+    "Eulerian θ=½ SUPG, Co 0.5": (EUL + ["method.supg=true"], 0.5),
 }
 if small:  # the test suite: one revolution, no Courant-0.5 runs (9x the steps)
     del METHODS["Eulerian θ=½, Co 0.5"]

@@ -497,7 +497,7 @@ def schema_markdown() -> str:
         "# Scene keys",
         "",
         "Generated from `pfem2x/scene_schema.py` by `python -m pfem2x.scene > docs/SCENES.md`",
-        "(a test checks that this file is current). Expressions: see README.md.",
+        "(a test checks that this file is current). Expressions: see docs/USAGE.md.",
         "",
     ]
     for sec, keys in SCHEMA.items():

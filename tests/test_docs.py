@@ -18,8 +18,21 @@ def test_every_scene_key_is_documented():
     assert not missing, missing
 
 
-def test_readme_names_every_command_and_section():
+def test_readme_points_to_the_reference():
     readme = (ROOT / "README.md").read_text()
+    for word in (
+        "make demo",
+        "make test",
+        "docs/USAGE.md",
+        "docs/SCENES.md",
+        "docs/RESULTS.md",
+        "docs/BENCHMARKS.md",
+    ):
+        assert word in readme, word
+
+
+def test_usage_names_every_command_and_section():
+    usage = (ROOT / "docs" / "USAGE.md").read_text()
     for word in (
         "make demo",
         "make test",
@@ -29,19 +42,19 @@ def test_readme_names_every_command_and_section():
         "pfem2x scenes",
         "pfem2x study",
         "--resume",
-        "docs/SCENES.md",
+        "SCENES.md",
     ):
-        assert word in readme, word
+        assert word in usage, word
     for sec in SCHEMA:
-        assert f"[{sec}]" in readme or sec in ("flow",), sec
+        assert f"[{sec}]" in usage or sec in ("flow",), sec
 
 
 def test_rt_reference_table_is_made_from_its_data(tmp_path, capsys):
-    """docs/data/rt-reference/table.md: its pfem2x rows follow from the stored summaries.
+    """docs/data/rt-reference/table.md follows from the data stored beside it.
 
-    ``benchmarks/rt_reference.py`` re-reads the trimmed run summaries (no interFoam
-    rows: the peer's folder is not part of the repository) and must print the very
-    cells of the committed table; a bad source is one ``error:`` line and exit code 2.
+    ``benchmarks/rt_reference.py`` re-reads the trimmed run summaries and the stored
+    interFoam tip histories and must print the very cells of the committed table; a bad
+    source is one ``error:`` line and exit code 2.
     """
     import importlib.util
 
@@ -56,7 +69,11 @@ def test_rt_reference_table_is_made_from_its_data(tmp_path, capsys):
     names = sorted(p.name for p in (data / "pfem2x").iterdir())
     assert len(names) >= 10
     runs = [a for n in names for a in ("--run", f"{n}={data / 'pfem2x' / n}")]
-    mod.main(["--stored", "--ref", "ls_aco0.5", *runs, "--md", str(tmp_path / "t.md")])
+    stored = ["r050_dt0.001", "r100_dt0.001", "r100_dt0.0025", "r100_co0.5_signm"]
+    cases = sorted(p.name for p in (data / "interfoam").iterdir() if p.is_dir())
+    runs += [a for n in cases for a in ("--case", f"{n}={data / 'interfoam' / n}")]
+    names += stored + cases
+    mod.main(["--stored", *stored, "--ref", "ls_aco0.5", *runs, "--md", str(tmp_path / "t.md")])
     ours = {r.split("|")[1].strip(): r for r in (tmp_path / "t.md").read_text().splitlines()[2:]}
     committed = {
         r.split("|")[1].strip(): r for r in (data / "table.md").read_text().splitlines()[2:]

@@ -1,0 +1,458 @@
+"""Rayleigh-Taylor for OpenFOAM interFoam: write the case, run it, read the tips.
+
+Usage::
+
+    python benchmarks/interfoam_case.py make CASE --nx 100 --ny 400 (--max-co 0.5 | --dt 0.001)
+        [--tau-end 2.5] [--write-every 0.025] [--sign 1] [--nproc 2]
+    python benchmarks/interfoam_case.py run CASE [--np 1] [--tlim 1500]
+    python benchmarks/interfoam_case.py tips CASE [--quiet]
+
+The problem is the scene ``pfem2x/scenes/rayleigh-taylor.toml``: its ``[params]`` (d, g,
+densities, viscosity) and ``[mesh] bounds`` are read from the scene file, so both codes
+solve the same flow. Heavy fluid (phase ``heavy``, ``alpha.heavy = 1``) above light fluid,
+equal dynamic viscosity, no surface tension, slip on all four walls, fluids at rest,
+interface y = sign * 0.1 d cos(2 pi x / d) (``--sign -1`` flips it: spike on the axis).
+``alpha.heavy`` at t = 0 is the area fraction of each cell above that curve (Gauss-Legendre
+quadrature of the clipped column height, written as a nonuniform list: no setFields).
+
+Numerics are those of the damBreak tutorial of OpenFOAM v1912 (``apt-get install
+openfoam``): Euler in time, MULES (semi-implicit, ``MULESCorr yes``, 2 alpha correctors,
+vanLeer for alpha), PIMPLE with 1 outer and 3 pressure correctors, no momentum predictor,
+PCG/DIC for ``p_rgh``. The step is adaptive (``--max-co``: ``maxCo = maxAlphaCo``) or fixed
+(``--dt``). One 2D layer of NX x NY hexahedra; ``alpha.heavy`` is written every
+``--write-every`` time units (a ``writeObjects`` function object), all fields at the end.
+
+``run`` calls blockMesh and interFoam (``--np 2``: decomposePar into horizontal strips,
+``mpirun``, reconstructPar of alpha) with logs ``log.*`` in the case and the wall time of
+interFoam in ``wallclock.txt``; ``tips`` writes ``tips.csv`` (columns ``t``, ``tau``,
+``y_spike``, ``y_bubble``, ``volume``): for every written ``alpha.heavy`` the lowest and the
+highest point of the ``alpha = 0.5`` iso-line, found column by column by linear
+interpolation between cell centres. Time: solver time t is in units sqrt(d/g);
+Tryggvason's tau = t sqrt(A g / d) with the Atwood number A.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import math
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+import tomllib
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = ROOT / "pfem2x" / "scenes" / "rayleigh-taylor.toml"
+FOAM_BASHRC = Path("/usr/share/openfoam/etc/bashrc")
+AMPLITUDE = 0.1  # interface amplitude in units of d (the scene's phases.heavy.region)
+TIP_TAUS = (1.0, 1.5, 2.0, 2.25, 2.5)
+
+
+@dataclass(frozen=True)
+class Problem:
+    """The Rayleigh-Taylor problem as the scene states it."""
+
+    x0: float
+    x1: float
+    y0: float
+    y1: float
+    d: float
+    g: float
+    rho_heavy: float
+    rho_light: float
+    mu: float
+
+    @property
+    def atwood(self) -> float:
+        """Atwood number (rho_heavy - rho_light) / (rho_heavy + rho_light)."""
+        return (self.rho_heavy - self.rho_light) / (self.rho_heavy + self.rho_light)
+
+    @property
+    def time_factor(self) -> float:
+        """tau / t = sqrt(A g / d)."""
+        return math.sqrt(self.atwood * self.g / self.d)
+
+
+def problem_from_scene(path: Path = SCENE) -> Problem:
+    """Read domain, densities, viscosity and gravity from the Rayleigh-Taylor scene file."""
+    s = tomllib.loads(path.read_text())
+    p = s["params"]
+    (x0, y0), (x1, y1) = s["mesh"]["bounds"]
+    return Problem(
+        x0=float(x0), x1=float(x1), y0=float(y0), y1=float(y1), d=float(p["d"]),
+        g=float(p["g"]), rho_heavy=float(p["rho_heavy"]), rho_light=float(p["rho_light"]),
+        mu=float(p["mu"]),
+    )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class CaseSpec:
+    """What ``make`` writes (also stored in the case as ``case.txt``)."""
+
+    nx: int
+    ny: int
+    max_co: float | None = None
+    dt: float | None = None
+    tau_end: float = 2.5
+    write_every: float = 0.025
+    sign: float = 1.0
+    nproc: int = 2
+
+
+# --------------------------------------------------------------------------- writing
+def _foam_file(path: Path, cls: str, obj: str, body: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    head = (
+        "FoamFile\n{\n    version     2.0;\n    format      ascii;\n"
+        f"    class       {cls};\n    object      {obj};\n}}\n\n"
+    )
+    path.write_text(head + body.strip() + "\n")
+
+
+def initial_alpha(pb: Problem, nx: int, ny: int, sign: float, order: int = 16) -> np.ndarray:
+    """Area fraction of every cell above y = sign * AMPLITUDE d cos(2 pi x / d).
+
+    Returns an (ny * nx,) array in blockMesh's cell order (x fastest). Per cell the
+    fraction is the mean over x of the clipped height of the column above the curve,
+    integrated with ``order`` Gauss-Legendre points per cell.
+    """
+    dx, dy = (pb.x1 - pb.x0) / nx, (pb.y1 - pb.y0) / ny
+    xi, wi = np.polynomial.legendre.leggauss(order)
+    x = pb.x0 + dx * (np.arange(nx)[:, None] + 0.5 * (xi[None, :] + 1.0))  # (nx, order)
+    eta = sign * AMPLITUDE * pb.d * np.cos(2.0 * np.pi * x / pb.d)
+    ybot = pb.y0 + dy * np.arange(ny)  # (ny,)
+    h = np.clip(ybot[:, None, None] + dy - eta[None, :, :], 0.0, dy) / dy  # (ny, nx, order)
+    return (0.5 * h @ wi).ravel()
+
+
+def _boundary(entry: str) -> str:
+    walls = "".join(f"    {w} {{ {entry} }}\n" for w in ("left", "right", "bottom", "top"))
+    return f"boundaryField\n{{\n{walls}    frontAndBack {{ type empty; }}\n}}\n"
+
+
+def write_case(case: Path, spec: CaseSpec, pb: Problem | None = None) -> None:
+    """Write a complete interFoam case for ``spec`` into the folder ``case``."""
+    if (spec.max_co is None) == (spec.dt is None):
+        raise ValueError("give exactly one of max_co and dt")
+    pb = pb or problem_from_scene()
+    case.mkdir(parents=True, exist_ok=True)
+    nx, ny = spec.nx, spec.ny
+    dz = (pb.x1 - pb.x0) / nx
+    t_end = spec.tau_end / pb.time_factor
+    # end on a write time at or after tau_end, so that the tips can be interpolated there
+    end = math.ceil(t_end / spec.write_every - 1e-9) * spec.write_every
+    v = [(pb.x0, pb.y0), (pb.x1, pb.y0), (pb.x1, pb.y1), (pb.x0, pb.y1)]
+    verts = " ".join(f"({x:g} {y:g} {z:g})" for z in (0.0, dz) for x, y in v)
+    _foam_file(case / "system/blockMeshDict", "dictionary", "blockMeshDict", f"""
+scale 1;
+vertices ( {verts} );
+blocks ( hex (0 1 2 3 4 5 6 7) ({nx} {ny} 1) simpleGrading (1 1 1) );
+edges ();
+boundary
+(
+    left   {{ type wall; faces ((0 4 7 3)); }}
+    right  {{ type wall; faces ((1 2 6 5)); }}
+    bottom {{ type wall; faces ((0 1 5 4)); }}
+    top    {{ type wall; faces ((3 7 6 2)); }}
+    frontAndBack {{ type empty; faces ((0 3 2 1) (4 5 6 7)); }}
+);
+mergePatchPairs ();
+""")  # fmt: skip
+    if spec.max_co is not None:
+        dy = (pb.y1 - pb.y0) / ny
+        step = (
+            f"deltaT {0.1 * dy:g};\nadjustTimeStep yes;\nmaxCo {spec.max_co:g};\n"
+            f"maxAlphaCo {spec.max_co:g};\nmaxDeltaT {spec.write_every:g};\n"
+            "writeControl adjustableRunTime;\n"
+        )
+        control = "adjustableRunTime"
+    else:
+        step = f"deltaT {spec.dt:g};\nadjustTimeStep no;\nwriteControl runTime;\n"
+        control = "runTime"
+    _foam_file(case / "system/controlDict", "dictionary", "controlDict", f"""
+application interFoam;
+startFrom startTime;
+startTime 0;
+stopAt endTime;
+endTime {end:.10g};
+{step}writeInterval {end:.10g};
+purgeWrite 0;
+writeFormat ascii;
+writePrecision 8;
+writeCompression on;
+timeFormat general;
+timePrecision 8;
+runTimeModifiable no;
+functions
+{{
+    alphaHistory
+    {{
+        type writeObjects;
+        libs ("libutilityFunctionObjects.so");
+        objects (alpha.heavy);
+        writeControl {control};
+        writeInterval {spec.write_every:g};
+    }}
+}}
+""")  # fmt: skip
+    _foam_file(case / "system/fvSchemes", "dictionary", "fvSchemes", """
+ddtSchemes { default Euler; }
+gradSchemes { default Gauss linear; }
+divSchemes
+{
+    div(rhoPhi,U) Gauss linearUpwind grad(U);
+    div(phi,alpha) Gauss vanLeer;
+    div(phirb,alpha) Gauss linear;
+    div(((rho*nuEff)*dev2(T(grad(U))))) Gauss linear;
+}
+laplacianSchemes { default Gauss linear corrected; }
+interpolationSchemes { default linear; }
+snGradSchemes { default corrected; }
+""")  # fmt: skip
+    _foam_file(case / "system/fvSolution", "dictionary", "fvSolution", """
+solvers
+{
+    "alpha.heavy.*"
+    {
+        nAlphaCorr 2; nAlphaSubCycles 1; cAlpha 1; MULESCorr yes; nLimiterIter 5;
+        solver smoothSolver; smoother symGaussSeidel; tolerance 1e-8; relTol 0;
+    }
+    "pcorr.*" { solver PCG; preconditioner DIC; tolerance 1e-5; relTol 0; }
+    p_rgh { solver PCG; preconditioner DIC; tolerance 1e-7; relTol 0.05; }
+    p_rghFinal { $p_rgh; relTol 0; }
+    U { solver smoothSolver; smoother symGaussSeidel; tolerance 1e-6; relTol 0; }
+}
+PIMPLE
+{
+    momentumPredictor no;
+    nOuterCorrectors 1;
+    nCorrectors 3;
+    nNonOrthogonalCorrectors 0;
+    pRefCell 0;
+    pRefValue 0;
+}
+relaxationFactors { equations { ".*" 1; } }
+""")  # fmt: skip
+    _foam_file(case / "system/decomposeParDict", "dictionary", "decomposeParDict", f"""
+numberOfSubdomains {spec.nproc};
+method simple;
+coeffs {{ n (1 {spec.nproc} 1); }}
+""")  # fmt: skip
+    _foam_file(case / "constant/transportProperties", "dictionary", "transportProperties", f"""
+phases (heavy light);
+heavy {{ transportModel Newtonian; nu {pb.mu / pb.rho_heavy:.12g}; rho {pb.rho_heavy:g}; }}
+light {{ transportModel Newtonian; nu {pb.mu / pb.rho_light:.12g}; rho {pb.rho_light:g}; }}
+sigma 0;
+""")  # fmt: skip
+    _foam_file(case / "constant/g", "uniformDimensionedVectorField", "g", f"""
+dimensions [0 1 -2 0 0 0 0];
+value (0 {-pb.g:g} 0);
+""")  # fmt: skip
+    _foam_file(
+        case / "constant/turbulenceProperties", "dictionary", "turbulenceProperties",
+        "simulationType laminar;",
+    )  # fmt: skip
+    _foam_file(case / "0/U", "volVectorField", "U",
+               "dimensions [0 1 -1 0 0 0 0];\ninternalField uniform (0 0 0);\n"
+               + _boundary("type slip;"))  # fmt: skip
+    _foam_file(case / "0/p_rgh", "volScalarField", "p_rgh",
+               "dimensions [1 -1 -2 0 0 0 0];\ninternalField uniform 0;\n"
+               + _boundary("type fixedFluxPressure; value uniform 0;"))  # fmt: skip
+    alpha = initial_alpha(pb, nx, ny, spec.sign)
+    values = "\n".join(f"{a:.10g}" for a in alpha)
+    _foam_file(case / "0/alpha.heavy", "volScalarField", "alpha.heavy",
+               "dimensions [0 0 0 0 0 0 0];\n"
+               f"internalField nonuniform List<scalar>\n{alpha.size}\n(\n{values}\n)\n;\n"
+               + _boundary("type zeroGradient;"))  # fmt: skip
+    (case / "case.txt").write_text(repr(asdict(spec) | asdict(pb)) + "\n")
+
+
+# --------------------------------------------------------------------------- running
+def _foam(cmd: str, case: Path, log: str, timeout: float | None = None) -> int:
+    """Run an OpenFOAM command line in ``case`` with the v1912 environment; return its code."""
+    if not FOAM_BASHRC.is_file():
+        raise FileNotFoundError(f"{FOAM_BASHRC} (apt-get install openfoam)")
+    script = f"source {FOAM_BASHRC} >/dev/null 2>&1; {cmd}"
+    with open(case / log, "w") as f:
+        try:
+            return subprocess.run(
+                ["bash", "-c", script], cwd=case, stdout=f, stderr=subprocess.STDOUT,
+                timeout=timeout,
+            ).returncode  # fmt: skip
+        except subprocess.TimeoutExpired:
+            f.write(f"\n[interfoam_case] stopped after {timeout:g} s\n")
+            return -15
+
+
+def run_case(case: Path, nproc: int = 1, tlim: float = 1500.0) -> dict[str, float | int]:
+    """blockMesh + interFoam (serial, or ``nproc`` MPI ranks); return code and wall seconds."""
+    if _foam("blockMesh", case, "log.blockMesh") != 0:
+        raise RuntimeError(f"blockMesh failed: {case / 'log.blockMesh'}")
+    if nproc > 1:
+        if _foam("decomposePar -force", case, "log.decomposePar") != 0:
+            raise RuntimeError(f"decomposePar failed: {case / 'log.decomposePar'}")
+        root = ["--allow-run-as-root"] if os.geteuid() == 0 else []
+        cmd = " ".join(["mpirun", *root, "--oversubscribe", "-np", str(nproc), "interFoam"])
+        cmd += " -parallel"
+    else:
+        cmd = "interFoam"
+    t0 = time.perf_counter()
+    rc = _foam(cmd, case, "log.interFoam", timeout=tlim)
+    wall = time.perf_counter() - t0
+    if nproc > 1:
+        _foam("reconstructPar -fields '(alpha.heavy)'", case, "log.reconstructPar")
+    (case / "wallclock.txt").write_text(f"np={nproc} rc={rc} wall_s={wall:.3f}\n")
+    return {"rc": rc, "wall": wall}
+
+
+# --------------------------------------------------------------------------- tips
+def read_internal_scalar(path: Path) -> np.ndarray | None:
+    """The internalField of an ASCII volScalarField (plain or ``.gz``); None if absent."""
+    if path.is_file():
+        text = path.read_text()
+    elif path.with_name(path.name + ".gz").is_file():
+        with gzip.open(path.with_name(path.name + ".gz"), "rt") as f:
+            text = f.read()
+    else:
+        return None
+    m = re.search(r"internalField\s+nonuniform\s+List<scalar>\s*(\d+)\s*\(", text)
+    if m is None:
+        return None
+    n = int(m.group(1))
+    return np.array(text[m.end() :].split(None, n)[:n], dtype=float)
+
+
+def iso_extent(alpha: np.ndarray, nx: int, ny: int, y0: float, y1: float) -> tuple[float, float]:
+    """Lowest and highest y of the ``alpha = 0.5`` line over all cell columns.
+
+    ``alpha`` is in blockMesh order (x fastest). In each column the line crosses between
+    two cell centres where ``alpha - 0.5`` changes sign; the crossing is interpolated
+    linearly. Returns (nan, nan) if no column has a crossing.
+    """
+    a = alpha.reshape(ny, nx) - 0.5
+    dy = (y1 - y0) / ny
+    yc = y0 + (np.arange(ny) + 0.5) * dy
+    lo, hi = a[:-1], a[1:]
+    cross = (lo < 0.0) != (hi < 0.0)
+    if not cross.any():
+        return math.nan, math.nan
+    with np.errstate(divide="ignore", invalid="ignore"):
+        y = yc[:-1, None] + dy * lo / (lo - hi)
+    y = y[cross]
+    return float(y.min()), float(y.max())
+
+
+def case_tips(case: Path) -> np.ndarray:
+    """Rows (t, tau, y_spike, y_bubble, volume) for every written ``alpha.heavy`` of a case."""
+    info = eval_case_txt(case)
+    pb = Problem(**{k: info[k] for k in Problem.__dataclass_fields__})
+    nx, ny = int(info["nx"]), int(info["ny"])
+    cell = (pb.x1 - pb.x0) / nx * (pb.y1 - pb.y0) / ny
+    times = []
+    for d in case.iterdir():
+        try:
+            times.append((float(d.name), d))
+        except ValueError:
+            continue
+    rows = []
+    for t, d in sorted(times):
+        a = read_internal_scalar(d / "alpha.heavy")
+        if a is None or a.size != nx * ny:
+            continue
+        lo, hi = iso_extent(a, nx, ny, pb.y0, pb.y1)
+        rows.append((t, t * pb.time_factor, lo, hi, float(a.sum() * cell)))
+    return np.array(rows, dtype=float).reshape(-1, 5)
+
+
+def eval_case_txt(case: Path) -> dict[str, float]:
+    """The parameters ``make`` stored in ``case.txt`` (a dict of numbers)."""
+    import ast
+
+    return ast.literal_eval((case / "case.txt").read_text())
+
+
+def write_tips(case: Path) -> np.ndarray:
+    """Write ``case/tips.csv`` (t, tau, y_spike, y_bubble, volume) and return its rows."""
+    rows = case_tips(case)
+    np.savetxt(case / "tips.csv", rows, delimiter=",", fmt="%.8g",
+               header="t,tau,y_spike,y_bubble,volume", comments="")  # fmt: skip
+    return rows
+
+
+def tips_at(rows: np.ndarray, taus: tuple[float, ...] = TIP_TAUS) -> dict[str, list[float]]:
+    """Spike and bubble interpolated linearly in tau (nan outside the written range)."""
+    tau = rows[:, 1]
+    out: dict[str, list[float]] = {"spike": [], "bubble": []}
+    for k, col in (("spike", 2), ("bubble", 3)):
+        for t in taus:
+            ok = len(tau) > 0 and tau[0] <= t <= tau[-1] + 1e-6
+            out[k].append(float(np.interp(t, tau, rows[:, col])) if ok else math.nan)
+    return out
+
+
+# --------------------------------------------------------------------------- command line
+def main(argv: list[str] | None = None) -> None:
+    """Command line: ``make``, ``run`` and ``tips`` (see the module docstring)."""
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    mk = sub.add_parser("make", help="write a case folder")
+    mk.add_argument("case", type=Path)
+    mk.add_argument("--nx", type=int, required=True)
+    mk.add_argument("--ny", type=int, required=True)
+    step = mk.add_mutually_exclusive_group(required=True)
+    step.add_argument("--max-co", type=float, help="adaptive step: maxCo = maxAlphaCo")
+    step.add_argument("--dt", type=float, help="fixed step")
+    mk.add_argument("--tau-end", type=float, default=2.5)
+    mk.add_argument("--write-every", type=float, default=0.025, help="alpha output interval")
+    mk.add_argument("--sign", type=float, default=1.0, choices=(1.0, -1.0))
+    mk.add_argument("--nproc", type=int, default=2, help="ranks for decomposeParDict")
+    mk.add_argument("--overwrite", action="store_true")
+    rn = sub.add_parser("run", help="blockMesh + interFoam, then tips.csv")
+    rn.add_argument("case", type=Path)
+    rn.add_argument("--np", type=int, default=1)
+    rn.add_argument("--tlim", type=float, default=1500.0, help="stop interFoam after (s)")
+    tp = sub.add_parser("tips", help="tips.csv from the written alpha.heavy fields")
+    tp.add_argument("case", type=Path)
+    tp.add_argument("--quiet", action="store_true")
+    a = ap.parse_args(argv)
+
+    def fail(msg: str) -> None:
+        print(f"error: {msg}", file=sys.stderr)
+        raise SystemExit(2)
+
+    if a.cmd == "make":
+        if a.nx < 2 or a.ny < 2:
+            fail("--nx/--ny: at least 2 cells")
+        if a.case.exists() and any(a.case.iterdir()):
+            if not a.overwrite:
+                fail(f"{a.case}: exists and is not empty (use --overwrite)")
+            shutil.rmtree(a.case)
+        spec = CaseSpec(a.nx, a.ny, a.max_co, a.dt, a.tau_end, a.write_every, a.sign, a.nproc)
+        write_case(a.case, spec)
+        print(f"wrote {a.case}")
+        return
+    if not (a.case / "case.txt").is_file():
+        fail(f"{a.case}: not a case written by 'interfoam_case.py make' (no case.txt)")
+    if a.cmd == "run":
+        r = run_case(a.case, a.np, a.tlim)
+        print(f"interFoam: rc {r['rc']}, wall {r['wall']:.1f} s")
+    rows = write_tips(a.case)
+    if a.cmd == "tips" and a.quiet:
+        return
+    tips = tips_at(rows)
+    print("tau    " + "  ".join(f"{t:>15g}" for t in TIP_TAUS))
+    for k in ("spike", "bubble"):
+        print(f"{k:6s} " + "  ".join(f"{v:15.4f}" for v in tips[k]))
+    if len(rows):
+        print(f"heavy volume {rows[0, 4]:.6f} -> {rows[-1, 4]:.6f}")
+
+
+if __name__ == "__main__":
+    main()
