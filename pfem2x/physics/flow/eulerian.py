@@ -34,7 +34,7 @@ key                            effect in this frame
 ``flow.interface_width``       smoothed Heaviside half-width / H (density, viscosity)
 ``flow.reinit_every``          re-distancing every N steps (0: never)
 ``flow.pressure_step``         ``increment``: :math:`-\nabla p^n` in the predictor; ``total``
-``flow.correction``            ``velocity`` (:math:`M^{-1}\rho^{-1}`) or ``momentum`` (:math:`M_\rho^{-1}`)
+``flow.correction``            ``velocity`` (:math:`M^{-1}\rho^{-1}`) or ``momentum``
 ``flow.rtol``                  tolerance of every linear solve
 ``flow.quadrature_degree``     quadrature of all flow forms
 =============================  ==========================================================
