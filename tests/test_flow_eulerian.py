@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from pfem2x.compat import MPI
-from pfem2x.physics.flow import cut_segments, positive_fraction, segment_distance
+from pfem2x.physics.flow.interface import cut_segments, positive_fraction, segment_distance
 from pfem2x.runner import Simulation, build_domain, make_solver
 from pfem2x.scene import builtin_scenes, load_scene
 
