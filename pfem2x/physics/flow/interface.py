@@ -248,7 +248,7 @@ class InterfaceGeometry:
         """This rank's zero iso-line segments ``(m, 2, 2)`` of nodal values ``phi``."""
         return cut_segments(phi[self.dofmap[: self.n_owned]], self.cell_xy)
 
-    def _gather(self, segs: np.ndarray) -> np.ndarray:
+    def gather(self, segs: np.ndarray) -> np.ndarray:
         """All ranks' segments (collective)."""
         parts = self.comm.allgather(segs)
         return np.concatenate([s for s in parts if len(s)] or [np.zeros((0, 2, 2))])
@@ -278,7 +278,7 @@ class InterfaceGeometry:
             pts[:, e] = 0.5 * (a + b)
         idx = np.argsort(~crosses, axis=1, kind="stable")[:, :2]
         segs = np.take_along_axis(pts, idx[:, :, None], axis=1)
-        d = segment_distance(self.coords[:, :2], self._gather(segs), cap=self.clip)
+        d = segment_distance(self.coords[:, :2], self.gather(segs), cap=self.clip)
         return np.where(inside, 1.0, -1.0) * np.minimum(d, self.clip)
 
     def redistance(self, phi: Any, keep: Any) -> None:
@@ -289,7 +289,7 @@ class InterfaceGeometry:
         ranks), so the zero iso-line does not move.
         """
         arr = phi.x.array
-        segs = self._gather(self.segments(arr))
+        segs = self.gather(self.segments(arr))
         L = self.clip
         near = np.abs(arr) < 2.0 * L
         new = np.sign(arr) * L
