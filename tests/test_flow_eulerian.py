@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from pfem2x.compat import MPI
-from pfem2x.physics.flow import cut_segments, positive_fraction, segment_distance
+from pfem2x.physics.flow.interface import cut_segments, positive_fraction, segment_distance
 from pfem2x.runner import Simulation, build_domain, make_solver
 from pfem2x.scene import builtin_scenes, load_scene
 
@@ -102,7 +102,7 @@ def test_redistance_keeps_the_interface(tmp_path_factory):
     x, y = s.coords[:, 0], s.coords[:, 1]
     s.phi.x.array[:] = 3.0 * (y - 0.1 * np.cos(2 * np.pi * x))
     before = s.phi.x.array.copy()
-    segs = s._segments_global(cut_segments(before[s.dofmap[: s.n_owned]], s.cell_xy))
+    segs = s.interface.gather(cut_segments(before[s.dofmap[: s.n_owned]], s.cell_xy))
     s.redistance()
     after = s.phi.x.array
     vals = before[s.dofmap]  # local cells (owned and ghost): their nodes are local

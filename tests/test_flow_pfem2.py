@@ -204,7 +204,7 @@ def test_single_fluid_without_gravity_has_no_phase_and_no_body_force(shared_tmp,
     MPI.COMM_WORLD.Barrier()
     sc = load_scene(str(path), [f"method.frame={frame}"])
     s = make_solver(sc, build_domain(sc, MPI.COMM_WORLD))
-    assert s.body_force is None and s.L_p0 is None
+    assert s.projection.body_force is None and s.projection.L_p0 is None
     assert s.phase is None and s.phi is None
     if frame == "lagrangian":
         assert "phase" not in s.cloud()

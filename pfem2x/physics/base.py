@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -12,11 +14,30 @@ from pfem2x.compat import MPI
 from pfem2x.mesh import Domain
 from pfem2x.scene import Scene
 
-__all__ = ["Diverged", "Solver"]
+__all__ = ["Diverged", "Solver", "require_finite"]
 
 
 class Diverged(FloatingPointError):
     """The solution stopped being finite or physical; names the quantity."""
+
+
+def require_finite(comm: MPI.Comm, what: str, values: np.ndarray) -> None:
+    """Raise :class:`Diverged` ("``what`` is not finite") if ``values`` holds NaN/Inf on any rank.
+
+    Collective: every rank enters the reduction and every rank raises.
+
+    Parameters
+    ----------
+    comm
+        The communicator of the ranks that share ``what``.
+    what
+        The quantity, as the message names it (e.g. ``"field T"``).
+    values
+        This rank's values.
+    """
+    bad = 0 if np.all(np.isfinite(values)) else 1
+    if comm.allreduce(bad, op=MPI.MAX):
+        raise Diverged(f"{what} is not finite")
 
 
 class Solver:
@@ -79,9 +100,24 @@ class Solver:
     def check_finite(self, t: float) -> None:
         """Raise :class:`Diverged` if any field holds NaN/Inf (collective)."""
         for name, u in self.fields().items():
-            bad = 0 if np.all(np.isfinite(u.x.array)) else 1
-            if self.comm.allreduce(bad, op=MPI.MAX):
-                raise Diverged(f"field {name} is not finite")
+            self.require_finite(f"field {name}", u.x.array)
+
+    def require_finite(self, what: str, values: np.ndarray) -> None:
+        """:func:`require_finite` on this solver's communicator (collective)."""
+        require_finite(self.comm, what, values)
+
+    @contextmanager
+    def timer(self, key: str) -> Iterator[None]:
+        """Add the wall time of the ``with`` block to ``timings[key]``.
+
+        The keys are those ``summary.json`` reports: ``particles``, ``assembly``,
+        ``solve`` (and ``reinit`` for the level set's re-distancing).
+        """
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.timings[key] = self.timings.get(key, 0.0) + (time.perf_counter() - t0)
 
     def energy_scale(self) -> float:
         """A reference kinetic energy for the runner's energy guard (0: none)."""
@@ -109,28 +145,47 @@ class Solver:
             _restore_cloud(cloud, state)
 
     # -- checkpoint / restart ---------------------------------------------------
-    #: attributes never saved by :meth:`checkpoint` (set-up data, objects)
-    checkpoint_exclude: frozenset[str] = frozenset({"scene", "domain", "comm", "name"})
+    #: the attributes a checkpoint stores (joined over the class hierarchy, see
+    #: :meth:`state_names`): DOLFINx functions (``function.NAME``), NumPy arrays
+    #: (``array.NAME``) and plain values (``json.NAME``); ``None`` values (a part the
+    #: scene does not use) are skipped. Everything else is set-up data, rebuilt by
+    #: the constructor.
+    checkpoint_state: tuple[str, ...] = ("timings",)
+
+    @classmethod
+    def state_names(cls) -> list[str]:
+        """The declared :attr:`checkpoint_state` of this class and its bases, base first."""
+        names: list[str] = []
+        for klass in reversed(cls.__mro__):
+            for name in vars(klass).get("checkpoint_state", ()):
+                if name not in names:
+                    names.append(name)
+        return names
 
     def checkpoint(self) -> dict[str, np.ndarray]:
         """Everything this rank needs to continue bit-identically, as named arrays.
 
-        Collected from the solver's attributes, so that state added later is
-        not forgotten: every DOLFINx ``Function`` (all entries, ghosts
-        included), every NumPy array, and every plain value (numbers, strings,
-        ``None``, and lists / tuples / dicts of them, stored as JSON), the
-        particle cloud (positions, cells, every field including hidden ones)
-        and NumPy's global random state. Objects (forms, matrices, solvers)
-        are rebuilt by the constructor; anything they cache must be
-        recomputable from the saved state (operators are re-assembled when
-        ``None`` or when ``dt`` changes). Subclasses with other state extend this.
+        The declared state (:meth:`state_names`): every DOLFINx ``Function``
+        (all entries, ghosts included, with its dofmap), every NumPy array and
+        every plain value (numbers, strings and lists / tuples / dicts of them,
+        stored as JSON); the particle cloud (positions, cells, every field
+        including hidden ones), the mesh partition and NumPy's global random
+        state. Objects (forms, matrices, solvers) are rebuilt by the
+        constructor; anything they cache must be recomputable from the saved
+        state (operators are re-assembled when ``None`` or when ``dt`` changes).
+
+        Raises
+        ------
+        TypeError
+            If a declared attribute is none of these (a programming error).
         """
         from pfem2x import compat  # noqa: PLC0415
 
         Function = compat.dolfinx.fem.Function
         out: dict[str, np.ndarray] = {}
-        for name, v in sorted(vars(self).items()):
-            if name in self.checkpoint_exclude:
+        for name in self.state_names():
+            v = getattr(self, name, None)
+            if v is None:
                 continue
             if isinstance(v, Function):
                 out[f"function.{name}"] = v.x.array.copy()
@@ -139,8 +194,9 @@ class Solver:
                 out[f"array.{name}"] = v.copy()
             else:
                 text = _json_or_none(v)
-                if text is not None:
-                    out[f"json.{name}"] = np.array(text)
+                if text is None:
+                    raise TypeError(f"{type(self).__name__}.{name}: not storable state")
+                out[f"json.{name}"] = np.array(text)
         # the partition: input index of every local cell (owned, then ghosts)
         out["mesh.cells"] = compat.original_cell_index(self.domain.mesh)
         out["mesh.owned"] = np.array(self.domain.table.num_cells_owned)
@@ -153,6 +209,15 @@ class Solver:
         out["rng.meta"] = np.array(json.dumps([kind, int(pos), int(has_gauss), float(cached)]))
         return out
 
+    def _missing_state(self, data: dict[str, np.ndarray]) -> str:
+        """The first declared state (not ``None`` here) that ``data`` lacks, or ``""``."""
+        for name in self.state_names():
+            if getattr(self, name, None) is None:
+                continue
+            if not any(f"{kind}.{name}" in data for kind in ("function", "array", "json")):
+                return name
+        return ""
+
     def restore_checkpoint(
         self,
         data: dict[str, np.ndarray],
@@ -160,51 +225,59 @@ class Solver:
     ) -> None:
         """Put back the state of :meth:`checkpoint` (collective; same scene and rank count).
 
-        When every rank has the mesh partition of the checkpoint (always
-        serially; under MPI when the partitioner is deterministic) all arrays
-        are put back as they were: the run continues bit-identically.
-        Otherwise (the graph partitioner of some DOLFINx versions is not
-        reproducible) functions and particles are re-distributed by the
-        partition-independent input cell index, using the other ranks' data
-        from ``load_rank(r)``; the per-rank set-up arrays are then kept as
-        built, and the run continues within round-off.
+        Only the declared state (:meth:`state_names`) is read; other entries
+        (e.g. set-up arrays that earlier versions stored) are ignored. When
+        every rank has the mesh partition of the checkpoint (always serially;
+        under MPI when the partitioner is deterministic) all arrays are put
+        back as they were: the run continues bit-identically. Otherwise (the
+        graph partitioner of some DOLFINx versions is not reproducible)
+        functions and particles are re-distributed by the partition-independent
+        input cell index, using the other ranks' data from ``load_rank(r)``;
+        the per-rank arrays are then kept as built, and the run continues
+        within round-off.
 
         Raises
         ------
         ValueError
-            If the data does not fit (another mesh or solver).
+            If the data does not fit (another mesh or solver), on every rank.
         """
         from pfem2x import compat  # noqa: PLC0415
 
         Function = compat.dolfinx.fem.Function
+        missing = self._missing_state(data)
+        if self.comm.allreduce(int(bool(missing)), op=MPI.MAX):
+            what = f"{missing!r}" if missing else "the state of another rank"
+            raise ValueError(f"the checkpoint lacks {what} of this solver ({self.name})")
         cells = compat.original_cell_index(self.domain.mesh)
         same = int(np.array_equal(cells, data.get("mesh.cells")))
         same = bool(self.comm.allreduce(same, op=MPI.MIN))
         if not same and load_rank is None:
             raise ValueError("the mesh partition differs from the checkpoint's")
         others = None if same else [load_rank(r) for r in range(self.comm.size)]
-        for key, v in data.items():
-            kind, _, name = key.partition(".")
-            if kind == "function":
-                u = getattr(self, name, None)
-                if not isinstance(u, Function):
-                    raise ValueError(f"function {name} is not in this solver")
+        for name in self.state_names():
+            old = getattr(self, name, None)
+            if old is None:
+                continue
+            if isinstance(old, Function):
+                v = data.get(f"function.{name}")
+                if v is None:
+                    raise ValueError(f"function {name} is not in the checkpoint")
                 if same:
-                    if u.x.array.shape != v.shape:
+                    if old.x.array.shape != v.shape:
                         raise ValueError(f"function {name} does not fit this solver")
-                    u.x.array[:] = v
+                    old.x.array[:] = v
                 else:
-                    _redistribute_function(u, name, others, cells, compat)
-            elif kind == "array" and same:
-                a = getattr(self, name, None)
-                if isinstance(a, np.ndarray) and a.shape == v.shape and a.flags.writeable:
-                    a[...] = v
+                    _redistribute_function(old, name, others, cells, compat)
+            elif f"array.{name}" in data:
+                if not same:
+                    continue  # per-rank arrays: kept as built
+                v = data[f"array.{name}"]
+                if isinstance(old, np.ndarray) and old.shape == v.shape and old.flags.writeable:
+                    old[...] = v
                 else:
                     setattr(self, name, v.copy())
-            elif kind == "json":
-                val = json.loads(str(v))
-                old = getattr(self, name, None)
-                setattr(self, name, _like(val, old))
+            elif f"json.{name}" in data:
+                setattr(self, name, _like(json.loads(str(data[f"json.{name}"])), old))
         cloud = self.cloud()
         if cloud is not None and "cloud.x" in data:
             if same:

@@ -1,4 +1,4 @@
-r"""PFEM-2 Navier–Stokes, one or two phases: ``method.frame = "lagrangian"`` (issue 5).
+r"""PFEM-2 Navier–Stokes, one or two phases: ``method.frame = "lagrangian"``.
 
 Particles carry the velocity ``u`` and, with two phases, a sharp ``phase``
 (1 in the phase that has a ``region``, 0 in the other). The fixed P1 mesh only
@@ -38,7 +38,7 @@ motion alone (no convective term is ever assembled). One step
    the dam break, its particles crowding into the interface cells),
    :math:`p^{n+1} = p^n + \delta p` (``flow.pressure_step = "total"``:
    :math:`p^{n+1} = \delta p`, the explicit source being :math:`g` alone) — the
-   machinery of :class:`pfem2x.physics.flow.FlowBase`, shared with the
+   :class:`~pfem2x.physics.flow.projection.PressureProjection`, shared with the
    Eulerian frame.
 4. **Increment** back to the particles: :math:`u_p \mathrel{+}= (u^{n+1} -
    \hat u)(x_p)`, never overwritten; with ``flow.pic_fraction`` = α > 0 the
@@ -65,13 +65,41 @@ twice that with ``flow.extra_pass``; +1 vector (the heavy phase's source) with
 ``flow.mass_weighted = true`` (see :meth:`LagrangianFlow._kick`,
 :meth:`LagrangianFlow._project_velocity`).
 
+Scene keys this frame reads (besides the problem's: ``flow.gravity``, the
+sides, ``initial_velocity``, ``velocity_scale``, ``time_factor``,
+``max_speed``, ``[phases]``):
+
+==================================  =====================================================
+key                                 effect in this frame
+==================================  =====================================================
+``method.particles_per_cell``       particles seeded per cell
+``method.min_particles_per_cell``   step 5: cells with fewer get particles (0: off)
+``method.max_particles_per_cell``   step 5: cells with more lose particles (0: off)
+``method.seed``                     seeding and population control
+``method.projection``               step 2 (``auto`` = ``average``)
+``method.substep_courant``          step 1: cells per X-IVAS sub-step
+``method.substep_gradient``         step 1: turning per sub-step
+``method.preconditioner``           pressure solve (cg); the viscous solve is cg/Jacobi
+``flow.pressure_step``              ``increment`` (source :math:`g - \nabla p^n/\rho`) or ``total``
+``flow.correction``                 ``velocity`` or ``momentum`` (step 3)
+``flow.extra_pass``                 step 6 of the paper (second pass, :math:`\theta = 1/2`)
+``flow.pic_fraction``               step 4 blend towards the mesh velocity (0: FLIP)
+``flow.pic_fraction_light``         the same for the light phase (two phases)
+``flow.light_source``               ``full`` or ``gravity`` (see :meth:`LagrangianFlow._kick`)
+``flow.mass_weighted``              mass-weighted velocity projection (two phases)
+``flow.rtol``                       tolerance of every linear solve
+==================================  =====================================================
+
+Ignored here: ``method.theta``, ``method.supg``, ``flow.interface_width``,
+``flow.reinit_every``, ``flow.quadrature_degree`` (the forms are integrated
+exactly: DG0 coefficients, P1 fields), ``flow.inflow_velocity``.
+
 Limitations: box sides ``slip`` / ``noslip`` only (inflow / outflow need
 particle seeding and deletion at the boundary, not wired yet); 2D.
 """
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import numpy as np
@@ -81,18 +109,18 @@ from pfem2x import compat, fem
 from pfem2x import particles as P
 from pfem2x.compat import MPI, PETSc
 from pfem2x.mesh import Domain
-from pfem2x.physics.base import Diverged
-from pfem2x.physics.flow import FlowBase
+from pfem2x.physics.flow.problem import FlowSolver
+from pfem2x.physics.flow.projection import PressureProjection
 from pfem2x.scene import Scene, SceneError
 
 __all__ = ["LagrangianFlow"]
 
 
-class LagrangianFlow(FlowBase):
+class LagrangianFlow(FlowSolver):
     """PFEM-2 fractional-step NS with particle velocity and sharp particle phase.
 
     See the module docstring for the step. Diagnostics are those of
-    :class:`FlowBase` with these choices: phase volumes from the cell
+    :class:`~pfem2x.physics.flow.problem.FlowSolver` with these choices: phase volumes from the cell
     fractions of phase-1 particles (what the density uses); ``tip_falling`` /
     ``tip_rising`` from the ``phase = 1/2`` iso-line of the P1-projected
     phase (like interFoam's ``alpha = 0.5``); ``tip_*_particles`` the extreme
@@ -100,21 +128,15 @@ class LagrangianFlow(FlowBase):
     """
 
     name = "flow-lagrangian"
+    checkpoint_state = ("rho", "mu", "frac", "u_hat", "force", "force_heavy", "du", "_u_old",
+                        "_mom_nodes", "step_count")  # fmt: skip
 
     def __init__(self, scene: Scene, domain: Domain):
-        fl = scene["flow"]
-        for side in ("left", "right", "bottom", "top"):
-            kind = fl[side] or fl["walls"]
-            if kind not in ("slip", "noslip"):
-                raise SceneError(
-                    f"flow.{side if fl[side] else 'walls'}: {kind!r} sides are not available "
-                    "in the lagrangian flow frame yet (slip, noslip)"
-                )
+        self._check_sides(scene)
         super().__init__(scene, domain)
         pr = self.problem
-        meth = scene["method"]
+        fl = scene["flow"]
         mesh = domain.mesh
-        sc = PETSc.ScalarType
         self.pic_fraction = float(fl["pic_fraction"])
         self.pic_fraction_light = float(fl["pic_fraction_light"]) if pr.two_phase else 0.0
         self.mass_weighted = bool(fl["mass_weighted"]) and pr.two_phase
@@ -125,7 +147,7 @@ class LagrangianFlow(FlowBase):
             pr.two_phase and fl["light_source"] == "gravity" and not self.gravity_only
         )
         self.extra_pass = bool(fl["extra_pass"])
-        self.dt_c = compat.dolfinx.fem.Constant(mesh, sc(1.0))
+        self.dt_c = compat.dolfinx.fem.Constant(mesh, PETSc.ScalarType(1.0))
 
         # cell-wise density / viscosity from the particles
         self.W0 = compat.function_space(mesh, 0, family="DG")
@@ -137,14 +159,40 @@ class LagrangianFlow(FlowBase):
         self.force = compat.dolfinx.fem.Function(self.V)  # a = g - grad(p)/rho (P1)
         self.du = compat.dolfinx.fem.Function(self.V)
         self._u_old = compat.dolfinx.fem.Function(self.V)  # u^n for the extra pass
+        self.force_heavy: Any = None  # flow.light_source = "gravity": the heavy phase's a
+        self._seed_particles()
+        self._update_phase_fields()
+        self._forms()
+        compat.set_bc(compat.petsc_vec(self.u), self._bcs_u)
+        self.u.x.scatter_forward()
+        if np.any(pr.gravity):
+            self.projection.initial_pressure(self.p)
+        self.projection.assemble_mass()
+        self._update_force()
+        self.volume0 = self.phase_volumes()
 
-        # particles
+    @staticmethod
+    def _check_sides(scene: Scene) -> None:
+        """Refuse box sides this frame cannot do yet (inflow / outflow)."""
+        fl = scene["flow"]
+        for side in ("left", "right", "bottom", "top"):
+            kind = fl[side] or fl["walls"]
+            if kind not in ("slip", "noslip"):
+                raise SceneError(
+                    f"flow.{side if fl[side] else 'walls'}: {kind!r} sides are not available "
+                    "in the lagrangian flow frame yet (slip, noslip)"
+                )
+
+    def _seed_particles(self) -> None:
+        """The cloud: ``u`` from the mesh velocity, ``phase`` from the region (two phases)."""
+        pr = self.problem
+        meth = self.scene["method"]
         fields: dict[str, Any] = {"u": (self.gdim,)}
         if pr.two_phase:
             fields["phase"] = ()
         if self.mass_weighted:
             fields["_mom"] = (self.gdim + 1,)  # work field: (rho u, rho) of each particle
-        self.cloud_ = P.Cloud(domain, fields)
+        self.cloud_ = P.Cloud(self.domain, fields)
         # nodal (sum w rho u, sum w rho) / sum w of the mass-weighted projection
         self._mom_nodes = np.zeros((len(self.coords), self.gdim + 1))
         self._mom_nodes[:, -1] = 1.0
@@ -158,13 +206,21 @@ class LagrangianFlow(FlowBase):
             self.cloud_.field("phase")[:] = np.asarray(region(x3, 0.0), dtype=bool)
         self.last_population = P.PopulationStats()
         self.step_count = 0
-        self._update_phase_fields()
 
-        # forms
+    def _forms(self) -> None:
+        """Pressure projection, viscous stiffness and the particles' source ``a``."""
+        pr = self.problem
+        mesh = self.domain.mesh
         dx = ufl.dx(domain=mesh)
         grav = bool(np.any(pr.gravity))  # without gravity no form has a body force
-        g = compat.dolfinx.fem.Constant(mesh, np.asarray(pr.gravity, dtype=sc))
-        self._setup_projection(self.rho, self.rho * g if grav else None, dx)
+        g = compat.dolfinx.fem.Constant(mesh, np.asarray(pr.gravity, dtype=PETSc.ScalarType))
+        self._use_projection(
+            PressureProjection(
+                self.V, self.Q, self.gdim, self.rho, self.rho * g if grav else None, dx,
+                self.dt_c, self._bcs_u, self._bcs_p, pr.correction, pr.incremental,
+                self.scene["method"]["preconditioner"], pr.rtol, self.timer,
+            )
+        )  # fmt: skip
         v, w = ufl.TrialFunction(self.V), ufl.TestFunction(self.V)
         mus = {m for (_, _, m, _) in pr.phases}
         self.viscous = max(mus) > 0.0
@@ -185,21 +241,10 @@ class LagrangianFlow(FlowBase):
             a_h = -ufl.grad(self.p) / pr.phases[0][1]
             self.L_fh = compat.form(ufl.dot(g + a_h if grav else a_h, w) * dx)
             self.b_fh = compat.create_vector(self.L_fh)
-        self.b_m = compat.create_vector(self.L_mass)
-        self._diag = compat.create_vector(self.L_mass)
-
-        compat.set_bc(compat.petsc_vec(self.u), self._bcs_u)
-        self.u.x.scatter_forward()
-        if np.any(pr.gravity):
-            self._initial_pressure()
-        fem.assemble_vector(self.L_mass, self.b_mass)
-        self._update_force()
-        self.volume0 = self._phase_volumes()
+        self.b_m = compat.create_vector(self.projection.L_mass)
+        self._diag = compat.create_vector(self.projection.L_mass)
 
     # -- phase / density --------------------------------------------------------
-    def _init_levelset(self) -> None:
-        """The phase lives on the particles (seeded in ``__init__``), not in a level set."""
-
     def _update_phase_fields(self) -> None:
         """Cell fractions → DG0 density and viscosity; P1 phase and ``phi`` (collective)."""
         c = self.cloud_
@@ -223,12 +268,12 @@ class LagrangianFlow(FlowBase):
         self.rho.x.scatter_forward()
         self.mu.x.scatter_forward()
 
-    def _cell_density(self) -> np.ndarray:
+    def cell_density(self) -> np.ndarray:
+        """Density of each owned cell: the DG0 density of the particles' phase fraction."""
         return self.rho.x.array[self._cell_dofs]
 
-    def _phase_volumes(self) -> dict[str, float]:
-        if not hasattr(self, "cloud_"):
-            return {}
+    def phase_volumes(self) -> dict[str, float]:
+        """Phase volumes from the cell fractions of phase-1 particles (what the density uses)."""
         names = [p[0] for p in self.problem.phases]
         total = float(self.comm.allreduce(self.cell_vol.sum(), op=MPI.SUM))
         if not self.problem.two_phase:
@@ -242,11 +287,11 @@ class LagrangianFlow(FlowBase):
             return
         fem.assemble_vector(self.L_f, self.b_f)
         n = len(self.b_f.array_r)
-        self.force.x.array[:n] = self.b_f.array_r / self.b_mass.array_r
+        self.force.x.array[:n] = self.b_f.array_r / self.projection.b_mass.array_r
         self.force.x.scatter_forward()
         if self.light_gravity_only:
             fem.assemble_vector(self.L_fh, self.b_fh)
-            self.force_heavy.x.array[:n] = self.b_fh.array_r / self.b_lumped.array_r
+            self.force_heavy.x.array[:n] = self.b_fh.array_r / self.projection.b_lumped.array_r
             self.force_heavy.x.scatter_forward()
 
     # -- the step -----------------------------------------------------------------
@@ -304,67 +349,68 @@ class LagrangianFlow(FlowBase):
 
     def _mesh_step(self, dt: float) -> None:
         """Step 3: viscous predictor, pressure increment, correction; new source ``a``."""
-        t0 = time.perf_counter()
-        fem.assemble_vector(self.L_mass, self.b_mass)
-        n = len(self.b_mass.array_r)
+        proj = self.projection
+        with self.timer("assembly"):
+            proj.assemble_mass()
+            if self.viscous:
+                self._viscous_operator(dt)
         if self.viscous:
-            if self.K is None or self.mu_varies:
-                self.K = fem.assemble_matrix(self.a_K, self._bcs_u, self.K)
-            if self.A_m is None:
-                self.A_m = self.K.duplicate(copy=True)
-            else:
-                self.K.copy(self.A_m, PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
-            self._diag.array[:] = self.b_mass.array_r / dt
-            self.A_m.setDiagonal(self._diag, addv=PETSc.InsertMode.ADD_VALUES)
-            self.b_m.array[:] = self._diag.array_r * self.u_hat.x.array[:n]
-            compat.set_bc(self.b_m, self._bcs_u)
-            if self.m_solver is None:
-                self.m_solver = fem.LinearSolver(self.A_m, "cg", "jacobi", rtol=self.problem.rtol)
-            else:
-                self.m_solver.set_operator(self.A_m)
-            t1 = time.perf_counter()
-            self.iterations["momentum"] = self.m_solver.solve(
-                self.b_m, compat.petsc_vec(self.u_star)
-            )
-            self.u_star.x.scatter_forward()
-            t2 = time.perf_counter()
+            with self.timer("solve"):
+                proj.iterations["momentum"] = self.m_solver.solve(
+                    self.b_m, compat.petsc_vec(self.u_star)
+                )
+                self.u_star.x.scatter_forward()
         else:
-            self.u_star.x.array[:] = self.u_hat.x.array
-            compat.set_bc(compat.petsc_vec(self.u_star), self._bcs_u)
-            self.u_star.x.scatter_forward()
-            t1 = t2 = time.perf_counter()
-        self._pressure_operator()
-        t3 = time.perf_counter()
-        self._solve_pressure(self.L_p, self.dp)
-        t4 = time.perf_counter()
-        self._correct(dt, mass_ready=True)
-        self._update_force()
-        t5 = time.perf_counter()
-        self.timings["assembly"] += (t1 - t0) + (t3 - t2) + (t5 - t4)
-        self.timings["solve"] += t2 - t1
+            with self.timer("assembly"):
+                self.u_star.x.array[:] = self.u_hat.x.array
+                compat.set_bc(compat.petsc_vec(self.u_star), self._bcs_u)
+                self.u_star.x.scatter_forward()
+        with self.timer("assembly"):
+            proj.assemble_operator()
+        proj.solve_increment()
+        with self.timer("assembly"):
+            proj.correct(self.u, self.p, dt, mass_ready=True)
+            self._update_force()
+
+    def _viscous_operator(self, dt: float) -> None:
+        """``M_rho/dt + K_mu`` and its right-hand side ``M_rho u_hat/dt`` (needs ``b_mass``)."""
+        b_mass = self.projection.b_mass
+        n = len(b_mass.array_r)
+        if self.K is None or self.mu_varies:
+            self.K = fem.assemble_matrix(self.a_K, self._bcs_u, self.K)
+        if self.A_m is None:
+            self.A_m = self.K.duplicate(copy=True)
+        else:
+            self.K.copy(self.A_m, PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+        self._diag.array[:] = b_mass.array_r / dt
+        self.A_m.setDiagonal(self._diag, addv=PETSc.InsertMode.ADD_VALUES)
+        self.b_m.array[:] = self._diag.array_r * self.u_hat.x.array[:n]
+        compat.set_bc(self.b_m, self._bcs_u)
+        if self.m_solver is None:
+            self.m_solver = fem.LinearSolver(self.A_m, "cg", "jacobi", rtol=self.problem.rtol)
+        else:
+            self.m_solver.set_operator(self.A_m)
 
     def _pass(self, dt: float, theta: float) -> None:
         """Steps 1–4 of one pass."""
         c = self.cloud_
-        t0 = time.perf_counter()
-        self._move(dt, theta)
-        self._project_velocity()
-        self._update_phase_fields()
-        self.timings["particles"] += time.perf_counter() - t0
+        with self.timer("particles"):
+            self._move(dt, theta)
+            self._project_velocity()
+            self._update_phase_fields()
         self._mesh_step(dt)
-        t1 = time.perf_counter()
-        self.du.x.array[:] = self.u.x.array - self.u_hat.x.array
-        P.add_increment(c, "u", self.du)
-        a = self.pic_fraction
-        al = self.pic_fraction_light
-        if a > 0.0 or al > 0.0:
-            up = c.field("u")
-            alpha = np.full(c.n, a)
-            if al > 0.0:
-                alpha[c.field("phase") < 0.5] = al
-            up *= 1.0 - alpha[:, None]
-            up += alpha[:, None] * P.evaluate(c, self.u)
-        self.timings["particles"] += time.perf_counter() - t1
+        with self.timer("particles"):
+            self.du.x.array[:] = self.u.x.array - self.u_hat.x.array
+            P.add_increment(c, "u", self.du)
+            a = self.pic_fraction
+            al = self.pic_fraction_light
+            if a > 0.0 or al > 0.0:
+                up = c.field("u")
+                alpha = np.full(c.n, a)
+                if al > 0.0:
+                    alpha[c.field("phase") < 0.5] = al
+                up *= 1.0 - alpha[:, None]
+                up += alpha[:, None] * P.evaluate(c, self.u)
 
     def _project_velocity(self) -> None:
         """Step 2 for ``u``: plain projection, or mass-weighted (``flow.mass_weighted``).
@@ -399,28 +445,34 @@ class LagrangianFlow(FlowBase):
         self.dt_c.value = dt
         self.dt_last = dt
         c = self.cloud_
-        meth = self.scene["method"]
         if self.extra_pass:
-            t0 = time.perf_counter()
-            saved = c.extract(np.arange(c.n))
-            self._u_old.x.array[:] = self.u.x.array
-            p_old = self.p.x.array.copy()
-            force_old = self.force.x.array.copy()
-            self.timings["particles"] += time.perf_counter() - t0
+            with self.timer("particles"):
+                saved = c.extract(np.arange(c.n))
+                self._u_old.x.array[:] = self.u.x.array
+                p_old = self.p.x.array.copy()
+                force_old = self.force.x.array.copy()
             self._pass(dt, 0.0)
             # second pass from the start-of-step state, theta = 1/2 in eq. 2.10
-            t0 = time.perf_counter()
-            c.remove(np.ones(c.n, dtype=bool))
-            names = c.field_names
-            c.append(saved["__x"], saved["__c"], {k: saved[k] for k in names})
-            self.force.x.array[:] = 0.5 * (self.force.x.array + force_old)
-            self.p.x.array[:] = p_old
-            self.timings["particles"] += time.perf_counter() - t0
+            with self.timer("particles"):
+                c.remove(np.ones(c.n, dtype=bool))
+                names = c.field_names
+                c.append(saved["__x"], saved["__c"], {k: saved[k] for k in names})
+                self.force.x.array[:] = 0.5 * (self.force.x.array + force_old)
+                self.p.x.array[:] = p_old
             self._pass(dt, 0.5)
         else:
             self._pass(dt, 0.0)
-        # 5. population control; the phase stays sharp
-        t0 = time.perf_counter()
+        with self.timer("particles"):
+            self._rebalance()
+        self.step_count += 1
+        self.steps_done += 1
+        self.require_finite("particle velocity", c.field("u"))
+        self._check()
+
+    def _rebalance(self) -> None:
+        """Step 5: population control; the phase stays sharp."""
+        c = self.cloud_
+        meth = self.scene["method"]
         nmin, nmax = meth["min_particles_per_cell"], meth["max_particles_per_cell"]
         if nmin > 0 or nmax > 0:
             fb = {"u": self.u}
@@ -432,13 +484,6 @@ class LagrangianFlow(FlowBase):
             if self.problem.two_phase:
                 ph = c.field("phase")
                 ph[:] = ph > 0.5
-        self.timings["particles"] += time.perf_counter() - t0
-        self.step_count += 1
-        self.steps_done += 1
-        bad = 0 if np.all(np.isfinite(c.field("u"))) else 1
-        if self.comm.allreduce(bad, op=MPI.MAX):
-            raise Diverged("particle velocity is not finite")
-        self._check()
 
     # -- output / diagnostics -----------------------------------------------------
     def cloud(self) -> Any:

@@ -1,0 +1,324 @@
+"""The common flow problem: scene data, spaces, boundary conditions, phases, diagnostics.
+
+:class:`FlowProblem` reads the scene's flow data; :class:`FlowSolver` is
+what both flow frames (:mod:`pfem2x.physics.flow.eulerian`,
+:mod:`pfem2x.physics.flow.pfem2`) share: the P1 velocity and pressure, the
+box-side boundary conditions, the cell geometry of the diagnostics, the
+interface geometry (:class:`~pfem2x.physics.flow.interface.InterfaceGeometry`)
+and the small step API. Each frame adds its own parts (the pressure
+projection of :mod:`pfem2x.physics.flow.projection`, a level set or a
+particle cloud) and says how its phase volumes and cell densities are
+measured.
+
+Boundaries of a box domain, per side (``flow.left``, ``right``, ``bottom``,
+``top``; ``flow.walls`` for the rest): ``slip`` (normal component zero),
+``noslip``, ``inflow`` (``flow.inflow_velocity``) and ``outflow`` (do-nothing,
+:math:`\\delta p = 0`).
+
+Time: the runner works in solver time ``t``; diagnostics also report
+``tau = t * flow.time_factor`` (e.g. Tryggvason's units for Rayleigh–Taylor).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from pfem2x import compat
+from pfem2x.cases import make_case
+from pfem2x.compat import MPI, PETSc
+from pfem2x.expr import Expression
+from pfem2x.mesh import Domain
+from pfem2x.physics.base import Diverged, Solver
+from pfem2x.physics.flow.interface import InterfaceGeometry
+from pfem2x.scene import FLOW_SIDES, Scene, SceneError
+
+__all__ = ["FlowProblem", "FlowSolver"]
+
+
+class FlowProblem:
+    """The scene's flow data.
+
+    Attributes
+    ----------
+    phases:
+        ``[(name, density, viscosity, region or None)]``; with two phases the
+        one with a region comes first (it is :math:`\\phi > 0`).
+    two_phase:
+        Whether a level set / phase field is carried.
+    gravity:
+        ``(gdim,)`` array (zeros without ``effects.gravity``).
+    sides:
+        Box side name → ``slip | noslip | inflow | outflow``.
+    """
+
+    def __init__(self, scene: Scene, gdim: int):
+        eff = scene.effects
+        fl = scene["flow"]
+        phases = []
+        for name, ph in scene["phases"].items():
+            region = (
+                Expression(ph["region"], scene.params, f"phases.{name}.region")
+                if "region" in ph
+                else None
+            )
+            mu = float(ph["viscosity"]) if eff["viscosity"] else 0.0
+            phases.append((name, float(ph["density"]), mu, region))
+        phases.sort(key=lambda p: p[3] is None)
+        self.phases = phases
+        self.two_phase = bool(eff["two_phase"])
+        g = np.zeros(gdim)
+        if eff["gravity"]:
+            gv = np.asarray(fl["gravity"], dtype=float)
+            g[: min(gdim, len(gv))] = gv[:gdim]
+        self.gravity = g
+        self.sides = {s: (fl[s] or fl["walls"]) for s in FLOW_SIDES[: 2 * gdim]}
+        self.initial_velocity = (
+            scene.vector_expr("flow", "initial_velocity", gdim)
+            if fl["initial_velocity"] is not None
+            else None
+        )
+        self.inflow_velocity = (
+            scene.vector_expr("flow", "inflow_velocity", gdim)
+            if fl["inflow_velocity"] is not None
+            else None
+        )
+        if "inflow" in self.sides.values() and self.inflow_velocity is None:
+            raise SceneError("flow.inflow_velocity: required with an inflow side")
+        self.velocity_scale = scene.expr("flow", "velocity_scale").value()
+        self.time_factor = scene.expr("flow", "time_factor").value()
+        self.max_speed = scene.expr("flow", "max_speed").value()
+        self.interface_width = float(fl["interface_width"])
+        self.reinit_every = int(fl["reinit_every"])
+        self.rtol = float(fl["rtol"])
+        self.correction = str(fl["correction"])
+        self.incremental = fl["pressure_step"] == "increment"
+        self.quadrature_degree = int(fl["quadrature_degree"])
+
+
+class FlowSolver(Solver):
+    """Spaces, fields, boundary conditions and diagnostics shared by the flow frames.
+
+    A frame sets up its own parts after this constructor, then measures
+    ``volume0`` (the phase volumes at the start) once with
+    :meth:`phase_volumes`. It implements :meth:`phase_volumes` and
+    :meth:`cell_density` (what its density is made of) and :meth:`step`.
+    """
+
+    checkpoint_state = ("u", "p", "phi", "phase", "u_star", "dp", "dt_last", "steps_done",
+                        "volume0")  # fmt: skip
+
+    def __init__(self, scene: Scene, domain: Domain):
+        super().__init__(scene, domain)
+        if domain.gdim != 2:
+            raise SceneError("mesh.kind: flow is available on 2D meshes only (for now)")
+        if any(domain.periodic):
+            raise SceneError("mesh.periodic: periodic flow is not available yet")
+        self.problem = pr = FlowProblem(scene, domain.gdim)
+        mesh = domain.mesh
+        self.gdim = gdim = domain.gdim
+        self.Q = compat.function_space(mesh, 1)
+        self.V = compat.function_space(mesh, 1, (gdim,))
+        self.coords = self.Q.tabulate_dof_coordinates()
+        self.u = compat.dolfinx.fem.Function(self.V, name="u")
+        self.p = compat.dolfinx.fem.Function(self.Q, name="p")
+        if pr.initial_velocity is not None:
+            arr = self.u.x.array.reshape(-1, gdim)
+            for i, e in enumerate(pr.initial_velocity):
+                arr[:, i] = e(self.coords, 0.0)
+        self.H = domain.min_h()
+        self.eps = pr.interface_width * self.H
+        tab = domain.table
+        self.n_owned = tab.num_cells_owned
+        self.dofmap = compat.dofmap_array(self.Q)[: tab.num_cells]
+        self.cell_xy = self.coords[self.dofmap[: self.n_owned]][:, :, :gdim]
+        self.cell_vol = tab.volume[: self.n_owned]
+        # gradients of the barycentric coordinates (for div u), ordered like the dofmap
+        inv = tab.inv_map[: self.n_owned]
+        self._gradlam = np.concatenate([-inv.sum(axis=1, keepdims=True), inv], axis=1)
+        self._hcell = tab.h_edge[: self.n_owned]
+        # -g.x at the cell centroids: potential energy = sum rho_K |K| (-g.x_K) (exact for DG0 rho)
+        g = pr.gravity[:gdim]
+        self._gravity_height = -(self.cell_xy.mean(axis=1) @ g) if np.any(g) else None
+        self.interface = InterfaceGeometry(
+            self.comm, self.coords, self.dofmap, self.n_owned, self.eps
+        )
+        #: two phases: the phase indicator (1 in the phase with a region) and a level set
+        #: whose zero iso-line is the interface (both P1)
+        self.phi: Any = None
+        self.phase: Any = None
+        if pr.two_phase:
+            self.phi = compat.dolfinx.fem.Function(self.Q, name="phi")
+            self.phase = compat.dolfinx.fem.Function(self.Q, name="phase")
+        self.dt_last = 0.0
+        self.steps_done = 0
+        self._bcs_u, self._bcs_p, self._inflow = self._boundary_conditions()
+        #: phase volumes at the start (set by the frame once its phases are known)
+        self.volume0: dict[str, float] = {}
+        self.case = make_case(scene["scene"]["case"], self)  # scene.case diagnostics
+        #: the pressure step (a frame creates it once its density is known)
+        self.projection: Any = None
+        self.u_star: Any = None
+        self.dp: Any = None
+
+    def _use_projection(self, projection: Any) -> None:
+        """Adopt the frame's :class:`PressureProjection` (its ``u_star``, ``dp`` are state)."""
+        self.projection = projection
+        self.u_star = projection.u_star
+        self.dp = projection.dp
+
+    # -- boundaries -----------------------------------------------------------
+    def _boundary_conditions(self) -> tuple[list, list, Any]:
+        pr = self.problem
+        lo, hi = self.domain.bounds
+        tol = 1e-8 * float(np.max(hi - lo))
+        mesh = self.domain.mesh
+        bcs_u, bcs_p = [], []
+        inflow = None
+        for k, side in enumerate(FLOW_SIDES[: 2 * self.gdim]):
+            axis, val = k // 2, (lo if k % 2 == 0 else hi)[k // 2]
+            kind = pr.sides[side]
+            facets = compat.locate_boundary_facets(
+                mesh, lambda x, a=axis, v=val: np.abs(x[a] - v) < tol
+            )
+            if kind == "slip":
+                bcs_u.append(compat.dirichlet_component(self.V, axis, facets, 0.0))
+            elif kind in ("noslip", "inflow"):
+                g = compat.dolfinx.fem.Function(self.V)
+                if kind == "inflow":
+                    inflow = g if inflow is None else inflow
+                    g = inflow
+                bcs_u.append(compat.dirichlet_component(self.V, None, facets, g))
+            elif kind == "outflow":
+                dofs = compat.dolfinx.fem.locate_dofs_topological(
+                    self.Q, mesh.topology.dim - 1, facets
+                )
+                bcs_p.append(compat.dolfinx.fem.dirichletbc(PETSc.ScalarType(0.0), dofs, self.Q))
+        return bcs_u, bcs_p, inflow
+
+    def _update_inflow(self, t: float) -> None:
+        if self._inflow is None:
+            return
+        arr = self._inflow.x.array.reshape(-1, self.gdim)
+        for i, e in enumerate(self.problem.inflow_velocity):
+            arr[:, i] = e(self.coords, t)
+
+    # -- what a frame measures ------------------------------------------------
+    def phase_volumes(self) -> dict[str, float]:
+        """Volume of each phase, by name (global)."""
+        raise NotImplementedError
+
+    def cell_density(self) -> np.ndarray:
+        """Density of each owned cell (kinetic and potential energy)."""
+        raise NotImplementedError
+
+    # -- diagnostics ----------------------------------------------------------
+    def interfaces(self) -> np.ndarray | None:
+        """This rank's segments ``(m, 2, 2)`` of the interface (zero iso-line of ``phi``)."""
+        if self.phi is None:
+            return None
+        return self.interface.segments(self.phi.x.array)
+
+    def tips(self) -> tuple[float, float]:
+        """Lowest and highest y of the zero iso-line of the level set (global)."""
+        return self.interface.tips(self.phi.x.array)
+
+    def diagnostics(self, t: float) -> dict[str, float]:
+        comm = self.comm
+        u = self.u.x.array.reshape(-1, self.gdim)
+        uc = u[self.dofmap[: self.n_owned]]  # (n, 3, gdim)
+        div = np.einsum("ckj,ckj->c", uc, self._gradlam)
+        speed_c = np.linalg.norm(uc, axis=2).max(axis=1) if len(uc) else np.zeros(0)
+        rho_c = self.cell_density()
+        # exact for P1 u: int_K |u|^2 = |K| / (d+1)(d+2) (sum_i |u_i|^2 + |sum_i u_i|^2)
+        nv = uc.shape[1]
+        u2 = (np.sum(uc**2, axis=(1, 2)) + np.sum(uc.sum(axis=1) ** 2, axis=1)) / (nv * (nv + 1))
+        ke = 0.5 * np.sum(rho_c * u2 * self.cell_vol)
+        d = {
+            "tau": t * self.problem.time_factor,
+            "kinetic_energy": float(comm.allreduce(ke, op=MPI.SUM)),
+            "div_max": float(comm.allreduce(np.abs(div).max() if len(div) else 0.0, op=MPI.MAX)),
+            "speed_max": float(comm.allreduce(speed_c.max() if len(speed_c) else 0.0, op=MPI.MAX)),
+            "courant": float(
+                comm.allreduce(
+                    (speed_c * self.dt_last / self._hcell).max() if len(speed_c) else 0.0,
+                    op=MPI.MAX,
+                )
+            ),
+        }
+        if self._gravity_height is not None:
+            pe = float(np.sum(rho_c * self.cell_vol * self._gravity_height))
+            d["potential_energy"] = float(comm.allreduce(pe, op=MPI.SUM))
+        for name, v in self.phase_volumes().items():
+            d[f"volume_{name}"] = v
+            v0 = self.volume0.get(name, v)
+            d[f"volume_change_{name}"] = (v - v0) / v0 if v0 else 0.0
+        if self.problem.two_phase:
+            d["tip_falling"], d["tip_rising"] = self.tips()
+        d.update(self.case.diagnostics(self, t))
+        return d
+
+    def metrics(self, history: list[dict[str, float]]) -> dict[str, Any]:
+        if not history:
+            return {}
+        out: dict[str, Any] = {
+            "kinetic_energy_final": history[-1]["kinetic_energy"],
+            "div_max": max(h["div_max"] for h in history),
+            "courant_max": max(h["courant"] for h in history),
+            "speed_max": max(h["speed_max"] for h in history),
+        }
+        if "potential_energy" in history[0]:
+            # kinetic energy against the potential energy released since the start
+            released = [history[0]["potential_energy"] - h["potential_energy"] for h in history]
+            excess = [h["kinetic_energy"] - r for h, r in zip(history, released, strict=True)]
+            out["energy_released_final"] = released[-1]
+            top = max(max(released), max(h["kinetic_energy"] for h in history))
+            out["energy_excess_max"] = max(excess) / top if top > 0.0 else 0.0
+        for name, *_ in self.problem.phases:
+            out[f"volume_{name}"] = [history[0][f"volume_{name}"], history[-1][f"volume_{name}"]]
+            out[f"volume_change_{name}"] = history[-1][f"volume_change_{name}"]
+            out[f"volume_change_max_{name}"] = max(abs(h[f"volume_change_{name}"]) for h in history)
+        if self.problem.two_phase:
+            out["tip_falling"] = [[h["tau"], h["tip_falling"]] for h in history]
+            out["tip_rising"] = [[h["tau"], h["tip_rising"]] for h in history]
+        out["tau_factor"] = self.problem.time_factor
+        out.update(self.case.metrics(history))
+        return out
+
+    # -- API ------------------------------------------------------------------
+    def max_velocity(self, t: float) -> float:
+        arr = self.u.x.array.reshape(-1, self.gdim)
+        local = float(np.max(np.linalg.norm(arr, axis=1))) if len(arr) else 0.0
+        vmax = float(self.comm.allreduce(local, op=MPI.MAX))
+        return vmax if vmax > 0.0 else self.problem.velocity_scale
+
+    def energy_scale(self) -> float:
+        """``1/2 rho_max U^2 |Omega|`` with ``U`` = ``flow.velocity_scale`` (energy guard)."""
+        rho = max(ph[1] for ph in self.problem.phases)
+        vol = float(self.comm.allreduce(self.cell_vol.sum(), op=MPI.SUM))
+        return 0.5 * rho * self.problem.velocity_scale**2 * vol
+
+    def time_label(self, t: float) -> str:
+        """Solver time and the scene's other time unit (e.g. Tryggvason's tau)."""
+        f = self.problem.time_factor
+        return f"t = {t:.4g}" if f == 1.0 else f"t = {t:.4g} (tau = {t * f:.4g})"
+
+    def fields(self) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        if self.phase is not None:
+            out["phase"] = self.phase
+            out["phi"] = self.phi
+        out["u"] = self.u
+        out["p"] = self.p
+        return out
+
+    def _check(self) -> None:
+        """Every field finite and the speed within ``flow.max_speed`` (collective)."""
+        self.check_finite(0.0)
+        if self.problem.max_speed > 0:
+            vmax = self.max_velocity(0.0)
+            if vmax > self.problem.max_speed:
+                raise Diverged(
+                    f"speed {vmax:.3g} exceeds flow.max_speed = {self.problem.max_speed:.3g}"
+                )
