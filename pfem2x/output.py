@@ -52,7 +52,10 @@ def _protected(path: Path) -> bool:
     """Whether ``path`` is ``/``, the home folder or the current folder or one of its parents."""
     p = path.resolve()
     cwd = Path.cwd().resolve()
-    home = Path.home().resolve()
+    try:
+        home = Path.home().resolve()
+    except (RuntimeError, KeyError):  # no home folder known
+        home = Path(p.anchor)
     return p == Path(p.anchor) or p == home or p == cwd or p in cwd.parents
 
 

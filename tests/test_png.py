@@ -1,0 +1,71 @@
+"""PNG snapshots: none when none is asked for, no renderer probe for 2D, the probe cached."""
+
+import json
+import subprocess
+
+import pytest
+
+from pfem2x import io as pio
+from pfem2x.runner import Simulation
+from pfem2x.scene import load_scene, validate
+
+QUICK = ["output.fields=false", "output.csv=false"]
+
+
+@pytest.fixture
+def no_probe(monkeypatch):
+    """Fail on any child process started by pfem2x.io (the pyvista probe)."""
+    calls = []
+
+    def fail(*args, **kwargs):
+        calls.append(args)
+        raise AssertionError("pyvista probe started")
+
+    monkeypatch.setattr(pio.subprocess, "run", fail)
+    monkeypatch.setattr(pio, "_PYVISTA_OK", None)
+    return calls
+
+
+@pytest.mark.parametrize("over", [["output.png_times=[]"], ["output.png=false"]])
+def test_no_png_when_none_is_asked_for(tmp_path, no_probe, over):
+    scene = load_scene("gaussian-hill", QUICK + over, "small")
+    res = Simulation(scene, tmp_path / "r", quiet=True).run()
+    assert res.status == "ok"
+    assert list((tmp_path / "r").glob("*.png")) == []
+    assert no_probe == []
+
+
+def test_default_png_times_are_first_and_last_without_probe(tmp_path, no_probe):
+    raw = {  # no output.png_times: t = 0 and t_end
+        "scene": {"name": "t"},
+        "mesh": {"kind": "rectangle", "bounds": [[0, 0], [2, 1]], "cells": [8, 4]},
+        "effects": {"diffusion": True},
+        "transport": {"kappa": 0.01, "initial": "sin(pi*x/2)*sin(pi*y)", "boundary_value": 0},
+        "time": {"t_end": 0.2, "dt": 0.05},
+        "output": {"fields": False, "csv": False},
+    }
+    res = Simulation(validate(raw), tmp_path / "r", quiet=True).run()
+    assert res.status == "ok"
+    names = sorted(p.name for p in (tmp_path / "r").glob("*.png"))
+    assert names == ["T_t0000.000.png", "T_t0000.200.png"]
+    assert no_probe == []  # 2D pictures are drawn with matplotlib
+
+
+def test_probe_runs_once_per_installation(tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.delenv("PFEM2X_PNG_BACKEND", raising=False)
+    monkeypatch.setattr(pio.importlib.util, "find_spec", lambda name: object())
+    calls = []
+
+    def fake_run(*args, **kwargs):
+        calls.append(args)
+        return subprocess.CompletedProcess(args, 0)
+
+    monkeypatch.setattr(pio.subprocess, "run", fake_run)
+    for _ in range(3):  # three processes: the cache file answers the second and third
+        monkeypatch.setattr(pio, "_PYVISTA_OK", None)
+        assert pio.pyvista_usable() is True
+    assert len(calls) == 1
+    cache = json.loads(pio.probe_cache_file().read_text())
+    assert list(cache.values()) == [True]
+    assert str(tmp_path) in str(pio.probe_cache_file())
