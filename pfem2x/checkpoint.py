@@ -125,7 +125,7 @@ def write_checkpoint(
     """
     from pfem2x import compat  # noqa: PLC0415
 
-    tmp, final, old = out / CHECKPOINT_TMP, out / CHECKPOINT, out / CHECKPOINT_OLD
+    tmp = out / CHECKPOINT_TMP
     data = solver.checkpoint()
     err = ""
     if comm.rank == 0:
@@ -146,30 +146,37 @@ def write_checkpoint(
     if err:
         return err
     if comm.rank == 0:
-        try:
-            meta = {
-                "format": FORMAT,
-                "step": loop["step"],
-                "t": loop["t"],
-                "dt": loop["dt"],
-                "mpi_size": comm.size,
-                "scene_hash": digest(scene_text),
-                "source": scene.source,
-                "base_dir": str(scene.base_dir),
-                "dolfinx_version": compat.dolfinx.__version__,
-                "loop": loop,
-                **extra,
-            }
-            pio.atomic_write_text(tmp / "history.json", json.dumps(history))
-            pio.write_json(tmp / "meta.json", meta)  # last: marks the folder complete
-            if final.exists():
-                shutil.rmtree(old, ignore_errors=True)
-                os.replace(final, old)
-            os.replace(tmp, final)
-            shutil.rmtree(old, ignore_errors=True)
-        except OSError as exc:
-            err = f"{final}: {exc.strerror or exc}"
+        meta = {
+            "format": FORMAT,
+            "step": loop["step"],
+            "t": loop["t"],
+            "dt": loop["dt"],
+            "mpi_size": comm.size,
+            "scene_hash": digest(scene_text),
+            "source": scene.source,
+            "base_dir": str(scene.base_dir),
+            "dolfinx_version": compat.dolfinx.__version__,
+            "loop": loop,
+            **extra,
+        }
+        err = _publish(out, meta, history)
     return comm.bcast(err, root=0)
+
+
+def _publish(out: Path, meta: dict[str, Any], history: list[dict[str, float]]) -> str:
+    """Complete ``.checkpoint.tmp/`` and rename it to ``checkpoint/`` (rank 0)."""
+    tmp, final, old = out / CHECKPOINT_TMP, out / CHECKPOINT, out / CHECKPOINT_OLD
+    try:
+        pio.atomic_write_text(tmp / "history.json", json.dumps(history))
+        pio.write_json(tmp / "meta.json", meta)  # last: marks the folder complete
+        if final.exists():
+            shutil.rmtree(old, ignore_errors=True)
+            os.replace(final, old)
+        os.replace(tmp, final)
+        shutil.rmtree(old, ignore_errors=True)
+    except OSError as exc:
+        return f"{final}: {exc.strerror or exc}"
+    return ""
 
 
 def load_checkpoint(comm: MPI.Comm, ck: Path, solver: Solver) -> tuple[list[dict[str, float]], str]:

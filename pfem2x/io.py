@@ -506,13 +506,14 @@ def _png_matplotlib(
     aspect = float(np.clip(span[1] / max(span[0], 1e-30), 0.2, 5.0))
     # the plot area follows the domain's shape: longest side 6.5 inches
     w, h = (6.5, 6.5 * aspect) if aspect <= 1 else (6.5 / aspect, 6.5)
-    fig, ax = plt.subplots(figsize=(w + 1.6, h + 0.9), layout="constrained")
+    # room for the colour bar and labels; at least 5 inches wide for the title
+    fig, ax = plt.subplots(figsize=(max(w + 1.8, 5.0), h + 0.9), layout="constrained")
     tpc = ax.tripcolor(tri, v, shading="gouraud", vmin=lo, vmax=hi, cmap="viridis")
     if contour is not None:
         ax.tricontour(tri, v, levels=[contour], colors="w")
     if segments is not None and len(segments):
         ax.add_collection(LineCollection(segments, colors="#ff3030", linewidths=1.2))
-    bar = fig.colorbar(tpc, ax=ax, shrink=0.9)
+    bar = fig.colorbar(tpc, ax=ax, shrink=0.8, aspect=30)
     bar.set_label(f"{label or 'value'}   [{lo:.4g}, {hi:.4g}]")
     ax.set_aspect("equal")
     ax.set_xlim(pts[:, 0].min(), pts[:, 0].max())
