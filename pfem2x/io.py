@@ -389,6 +389,17 @@ def pyvista_usable() -> bool:
     return _PYVISTA_OK
 
 
+def _run_probe() -> bool | None:
+    """Render once in a child process: whether it worked (``None``: it could not be run)."""
+    try:
+        res = subprocess.run(
+            [sys.executable, "-c", _PROBE], capture_output=True, timeout=120, check=False
+        )
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return res.returncode == 0
+
+
 def _cached_probe() -> bool:
     path, key = probe_cache_file(), _probe_key()
     try:
@@ -397,12 +408,8 @@ def _cached_probe() -> bool:
             return cache[key]
     except (OSError, ValueError, AttributeError):
         cache = {}
-    try:
-        res = subprocess.run(
-            [sys.executable, "-c", _PROBE], capture_output=True, timeout=120, check=False
-        )
-        ok = res.returncode == 0
-    except (OSError, subprocess.TimeoutExpired):
+    ok = _run_probe()
+    if ok is None:
         return False  # not cached: a timeout may be a busy machine
     try:
         cache = cache if isinstance(cache, dict) else {}

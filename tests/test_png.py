@@ -1,7 +1,6 @@
 """PNG snapshots: none when none is asked for, no renderer probe for 2D, the probe cached."""
 
 import json
-import subprocess
 
 import pytest
 
@@ -14,14 +13,14 @@ QUICK = ["output.fields=false", "output.csv=false"]
 
 @pytest.fixture
 def no_probe(monkeypatch):
-    """Fail on any child process started by pfem2x.io (the pyvista probe)."""
+    """Fail on the pyvista probe (a child process)."""
     calls = []
 
-    def fail(*args, **kwargs):
-        calls.append(args)
+    def fail():
+        calls.append(1)
         raise AssertionError("pyvista probe started")
 
-    monkeypatch.setattr(pio.subprocess, "run", fail)
+    monkeypatch.setattr(pio, "_run_probe", fail)
     monkeypatch.setattr(pio, "_PYVISTA_OK", None)
     return calls
 
@@ -57,11 +56,11 @@ def test_probe_runs_once_per_installation(tmp_path, monkeypatch):
     monkeypatch.setattr(pio.importlib.util, "find_spec", lambda name: object())
     calls = []
 
-    def fake_run(*args, **kwargs):
-        calls.append(args)
-        return subprocess.CompletedProcess(args, 0)
+    def fake_probe():
+        calls.append(1)
+        return True
 
-    monkeypatch.setattr(pio.subprocess, "run", fake_run)
+    monkeypatch.setattr(pio, "_run_probe", fake_probe)
     for _ in range(3):  # three processes: the cache file answers the second and third
         monkeypatch.setattr(pio, "_PYVISTA_OK", None)
         assert pio.pyvista_usable() is True
