@@ -81,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
                     f"{domain.num_cells_global()} cells, {steps} steps of dt = {dt:.4g}"
                 )
             return 0
-        out = Path(args.out) if args.out else Path("runs") / scene.name
+        out = Path(args.out) if args.out else None  # None: runs/<scene name>, checked
         sim = Simulation(scene, out, comm, quiet=args.quiet, overwrite=args.overwrite)
         result = sim.run()
         return result.exit_code

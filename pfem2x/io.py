@@ -302,23 +302,31 @@ def png_snapshot(
     title: str = "",
     clim: tuple[float, float] | None = None,
     contour: float | None = None,
+    label: str = "",
+    segments: np.ndarray | None = None,
 ) -> None:
     """Render a scalar P1 field to PNG (collective; rank 0 writes).
 
-    2D and 3D use pyvista off-screen (matplotlib if pyvista is missing); 1D
-    is a matplotlib line plot.
+    1D is a line plot, 2D a filled plot in the domain's aspect ratio with a
+    colour bar (``label`` and the range) and the interface ``segments``
+    (this rank's ``(m, 2, 2)``, e.g. the solver's ``interfaces()``) drawn on
+    top, both with matplotlib; 3D uses pyvista off-screen where it can
+    render (probed once per installation, see :func:`pyvista_usable`).
     """
     coords, vals = gather_p1(u)
+    segs = None
+    if segments is not None:
+        parts = u.function_space.mesh.comm.gather(np.asarray(segments).reshape(-1, 2, 2), root=0)
+        segs = np.concatenate(parts) if parts else None
     if coords is None:
         return
     gdim = coords.shape[2]
     if gdim == 1:
         _png_1d(path, coords, vals, title)
-        return
-    if pyvista_usable():
-        _png_pyvista(path, coords, vals, title, clim, contour)
+    elif gdim == 2 or not pyvista_usable():
+        _png_matplotlib(path, coords, vals, title, clim, contour, label, segs)
     else:
-        _png_matplotlib(path, coords, vals, title, clim, contour)
+        _png_pyvista(path, coords, vals, title, clim, contour)
 
 
 _PYVISTA_OK: bool | None = None
@@ -343,11 +351,32 @@ def quiet_vtk() -> None:
         pass
 
 
+def probe_cache_file() -> Path:
+    """The file caching the pyvista probe (``$XDG_CACHE_HOME/pfem2x`` or ``~/.cache/pfem2x``)."""
+    root = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(root) / "pfem2x" / "pyvista-probe.json"
+
+
+def _probe_key() -> str:
+    from importlib.metadata import PackageNotFoundError, version  # noqa: PLC0415
+
+    vers = []
+    for pkg in ("pyvista", "vtk"):
+        try:
+            vers.append(f"{pkg} {version(pkg)}")
+        except PackageNotFoundError:
+            vers.append(f"{pkg} ?")
+    return f"{sys.executable} | {' | '.join(vers)}"
+
+
 def pyvista_usable() -> bool:
-    """Whether pyvista can render off-screen here (probed once, in a child process).
+    """Whether pyvista can render off-screen here.
 
     Without an OpenGL stack (EGL/OSMesa) VTK aborts the whole process, so the
-    first render is tried in a subprocess; matplotlib is used if it fails.
+    first render is tried in a child process, once per installation: the
+    answer is cached in :func:`probe_cache_file`, keyed by the Python
+    executable and the pyvista and VTK versions. ``PFEM2X_PNG_BACKEND``
+    (``matplotlib`` / ``pyvista``) skips the probe.
     """
     global _PYVISTA_OK
     if _PYVISTA_OK is None:
@@ -356,14 +385,40 @@ def pyvista_usable() -> bool:
         elif importlib.util.find_spec("pyvista") is None:
             _PYVISTA_OK = False
         else:
-            try:
-                res = subprocess.run(
-                    [sys.executable, "-c", _PROBE], capture_output=True, timeout=120, check=False
-                )
-                _PYVISTA_OK = res.returncode == 0
-            except (OSError, subprocess.TimeoutExpired):
-                _PYVISTA_OK = False
+            _PYVISTA_OK = _cached_probe()
     return _PYVISTA_OK
+
+
+def _run_probe() -> bool | None:
+    """Render once in a child process: whether it worked (``None``: it could not be run)."""
+    try:
+        res = subprocess.run(
+            [sys.executable, "-c", _PROBE], capture_output=True, timeout=120, check=False
+        )
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return res.returncode == 0
+
+
+def _cached_probe() -> bool:
+    path, key = probe_cache_file(), _probe_key()
+    try:
+        cache = json.loads(path.read_text(encoding="utf-8"))
+        if isinstance(cache.get(key), bool):
+            return cache[key]
+    except (OSError, ValueError, AttributeError):
+        cache = {}
+    ok = _run_probe()
+    if ok is None:
+        return False  # not cached: a timeout may be a busy machine
+    try:
+        cache = cache if isinstance(cache, dict) else {}
+        cache[key] = ok
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(path, json.dumps(cache, indent=1) + "\n")
+    except OSError:
+        pass
+    return ok
 
 
 def _png_1d(path: Any, coords: np.ndarray, vals: np.ndarray, title: str) -> None:
@@ -432,29 +487,46 @@ def _png_pyvista(
 
 
 def _png_matplotlib(
-    path: Any, coords: np.ndarray, vals: np.ndarray, title: str, clim: Any, contour: float | None
+    path: Any,
+    coords: np.ndarray,
+    vals: np.ndarray,
+    title: str,
+    clim: Any,
+    contour: float | None,
+    label: str = "",
+    segments: np.ndarray | None = None,
 ) -> None:
+    """A filled 2D plot: the domain's aspect ratio, a colour bar, the interface on top."""
     import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
     import matplotlib.tri as mtri  # noqa: PLC0415
+    from matplotlib.collections import LineCollection  # noqa: PLC0415
 
     nc, nv, gdim = coords.shape
     pts = coords.reshape(-1, gdim)
     tri = mtri.Triangulation(pts[:, 0], pts[:, 1], np.arange(nc * nv).reshape(nc, nv)[:, :3])
-    fig, ax = plt.subplots(figsize=(6, 6))
-    tpc = ax.tripcolor(
-        tri,
-        vals.ravel(),
-        shading="gouraud",
-        vmin=clim[0] if clim else None,
-        vmax=clim[1] if clim else None,
-    )
+    v = vals.ravel()
+    lo, hi = (float(v.min()), float(v.max())) if clim is None else clim
+    span = np.ptp(pts[:, :2], axis=0)
+    aspect = float(np.clip(span[1] / max(span[0], 1e-30), 0.2, 5.0))
+    # the plot area follows the domain's shape: longest side 6.5 inches
+    w, h = (6.5, 6.5 * aspect) if aspect <= 1 else (6.5 / aspect, 6.5)
+    # room for the colour bar and labels; at least 5 inches wide for the title
+    fig, ax = plt.subplots(figsize=(max(w + 1.8, 5.0), h + 0.9), layout="constrained")
+    tpc = ax.tripcolor(tri, v, shading="gouraud", vmin=lo, vmax=hi, cmap="viridis")
     if contour is not None:
-        ax.tricontour(tri, vals.ravel(), levels=[contour], colors="w")
-    fig.colorbar(tpc, ax=ax)
+        ax.tricontour(tri, v, levels=[contour], colors="w")
+    if segments is not None and len(segments):
+        ax.add_collection(LineCollection(segments, colors="#ff3030", linewidths=1.2))
+    bar = fig.colorbar(tpc, ax=ax, shrink=0.8, aspect=30)
+    bar.set_label(f"{label or 'value'}   [{lo:.4g}, {hi:.4g}]")
     ax.set_aspect("equal")
-    ax.set_title(title)
+    ax.set_xlim(pts[:, 0].min(), pts[:, 0].max())
+    ax.set_ylim(pts[:, 1].min(), pts[:, 1].max())
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
+    ax.set_title(title, fontsize=10)
     fig.savefig(path, dpi=110)
     plt.close(fig)

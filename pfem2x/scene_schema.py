@@ -256,6 +256,13 @@ SCHEMA: dict[str, dict[str, Key]] = {
             doc="kinetic energy above this factor x max(initial, peak, reference) is "
             "divergence (0: no check)",
         ),
+        "max_growth": Key(
+            number(0.0),
+            10.0,
+            doc="transport: max|field| above this factor x the maximum-principle bound "
+            "e^(int max(0, -c) dt) (max(max|initial|, max|boundary_value|) + int max|source| dt) "
+            "is divergence (0: no check)",
+        ),
     },
     "method": {
         "frame": Key(choice("lagrangian", "eulerian", "characteristic"), "eulerian"),
@@ -281,7 +288,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "fields": Key(boolean, True),
         "particles": Key(boolean, True),
         "png": Key(boolean, True),
-        "png_times": Key(times_check, doc="times at which PNG snapshots are written"),
+        "png_times": Key(
+            times_check,
+            doc="times at which PNG snapshots are written (not given: t = 0 and t_end; []: none)",
+        ),
         "csv": Key(boolean, True),
         "checkpoint_every": Key(
             integer(0), 0, doc="write a restart checkpoint every N steps (0: only on a signal)"
@@ -389,7 +399,7 @@ _DOCS = {
     "method.seed": "random seed of particle seeding (results do not depend on the rank count)",
     "output.fields": "write fields.xdmf",
     "output.particles": "write particles.pvd (lagrangian frames)",
-    "output.png": "write PNG snapshots",
+    "output.png": "write PNG snapshots (false: none, whatever output.png_times says)",
     "output.csv": "write diagnostics.csv",
     "transport.field": "name of the transported field",
     "transport.velocity": "velocity components (expressions of x, y, z, t)",

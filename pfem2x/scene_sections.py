@@ -132,6 +132,7 @@ class TimeSection(Section):
     adaptive: bool
     max_courant: float | None
     max_energy_growth: float
+    max_growth: float
 
 
 @dataclass(frozen=True)

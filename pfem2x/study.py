@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Any
 
 from pfem2x.io import atomic_write_text
+from pfem2x.output import check_default_out
 from pfem2x.scene import Scene, SceneError, load_scene, parse_override
 
 __all__ = [
@@ -658,12 +659,20 @@ def write_plots(out: Path, info: dict[str, Any], rows: list[dict[str, Any]]) -> 
 # --------------------------------------------------------------------------
 # Driver
 # --------------------------------------------------------------------------
+#: marker file of a study folder (written when the study starts)
+STUDY_MARKER = ".pfem2x-study"
+
+
 def _check_out_dir(out: Path) -> None:
+    """Refuse a study folder that is a file or a non-empty folder without the study marker."""
     if out.exists() and not out.is_dir():
         raise StudyError(f"--out {out}: exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()):
-        if not (out / "variants").is_dir() and not (out / "study.json").is_file():
-            raise StudyError(f"--out {out}: a non-empty folder that is not a study folder")
+    if out.is_dir() and any(out.iterdir()) and not (out / STUDY_MARKER).is_file():
+        raise StudyError(
+            f"--out {out}: a non-empty folder that is not a pfem2x study folder (no "
+            f"{STUDY_MARKER} marker; studies written by older versions have none): "
+            f"use another folder, or remove it by hand"
+        )
 
 
 def run_study(
@@ -713,7 +722,11 @@ def run_study(
     if jobs < 1:
         raise StudyError(f"--jobs: must be >= 1, got {jobs}")
     base, variants = plan_study(scene, vary, sets, variant)
-    out_dir = Path(out) if out is not None else Path("studies") / base.name
+    if out is None:
+        out_dir = Path("studies") / base.name
+        check_default_out(out_dir, "studies")
+    else:
+        out_dir = Path(out)
     _check_out_dir(out_dir)
     keys = list(variants[0].texts)
     info: dict[str, Any] = {
@@ -733,6 +746,7 @@ def run_study(
 
     (out_dir / "variants").mkdir(parents=True, exist_ok=True)
     (out_dir / "logs").mkdir(exist_ok=True)
+    (out_dir / STUDY_MARKER).write_text("a pfem2x study folder\n")
     rows: dict[str, dict[str, Any]] = {}
     todo: list[Variant] = []
     for v in variants:

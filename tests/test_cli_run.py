@@ -48,6 +48,8 @@ def test_summary(small_run):
         "dt",
         "courant_max",
         "wall_seconds",
+        "setup_seconds",
+        "startup_seconds",
         "status",
         "dolfinx_version",
         "mpi_size",
@@ -61,6 +63,8 @@ def test_summary(small_run):
     assert 1.6 < s["courant_max"] <= 2.0 + 1e-9
     assert s["steps"] * s["dt"] == pytest.approx(1.0)
     assert res.stderr.strip() == ""  # --quiet: nothing printed
+    # start-up (process start -> first step) holds the set-up and the imports before it
+    assert s["startup_seconds"] > s["setup_seconds"] > 0
 
 
 def test_outputs(small_run):

@@ -157,3 +157,45 @@ def test_memory_bound_catches_a_leak_of_one_vector_per_step(tmp_path):
     # (350 x 32 x 8.7 kB = 97 MB) to exceed any such slack; the bound is 8 MB
     traced, rss = _growth(tmp_path / "m", leak=32)
     assert rss > RSS_BOUND, rss
+
+
+# -- transport growth guard ---------------------------------------------------------------
+def _hill(tmp, *extra):
+    from pfem2x.scene import load_scene  # noqa: PLC0415
+
+    over = ["method.frame=eulerian", "method.theta=0", "time.courant=40", "output.png=false"]
+    return Simulation(load_scene("gaussian-hill", over + list(extra)), tmp, quiet=True).run()
+
+
+@pytest.mark.mpi
+def test_growth_guard_stops_an_unstable_transport_run(shared_tmp):
+    # Explicit Euler at Courant 40: the unit hill grew to 1.7e11 with status "ok" before.
+    res = _hill(shared_tmp / "g")
+    assert res.status == "diverged" and res.exit_code == 3
+    msg = res.summary["message"]
+    assert "max|T|" in msg and "time.max_growth" in msg and "diverged in step" in msg, msg
+    assert res.history[-1]["max"] < 10.0  # stopped at the first step beyond 10 x the bound
+    if MPI.COMM_WORLD.rank == 0:
+        assert (shared_tmp / "g" / "last_good.xdmf").is_file()
+
+
+def test_growth_guard_off_with_zero(tmp_path):
+    res = _hill(tmp_path / "g", "time.max_growth=0")
+    assert res.status == "ok"
+    assert res.summary["metrics"]["max_final"] > 1e6  # the run it used to let through
+
+
+def test_growth_bound_counts_sources_and_reaction(tmp_path):
+    # dT/dt = q - c T with q = 1, c = -0.5 (growth), T0 = 0.1: exact 2.2 e^(t/2) - 2, which
+    # outgrows the bound without sources or reaction but stays below the bound with them.
+    raw = {
+        "scene": {"name": "grow"},
+        "mesh": {"kind": "rectangle", "bounds": [[0, 0], [1, 1]], "cells": [4, 4]},
+        "effects": {"source": True, "reaction": True},
+        "transport": {"initial": 0.1, "source": 1.0, "reaction": -0.5},
+        "time": {"t_end": 4.0, "dt": 0.1, "max_growth": 1.0},
+        "output": {"png": False, "particles": False, "fields": False},
+    }
+    res = Simulation(_scene(raw), tmp_path / "s", quiet=True).run()
+    assert res.status == "ok", res.summary["message"]
+    assert res.history[-1]["max"] > 10.0 * 0.1  # 14.3: far above the initial data

@@ -1,0 +1,70 @@
+"""PNG snapshots: none when none is asked for, no renderer probe for 2D, the probe cached."""
+
+import json
+
+import pytest
+
+from pfem2x import io as pio
+from pfem2x.runner import Simulation
+from pfem2x.scene import load_scene, validate
+
+QUICK = ["output.fields=false", "output.csv=false"]
+
+
+@pytest.fixture
+def no_probe(monkeypatch):
+    """Fail on the pyvista probe (a child process)."""
+    calls = []
+
+    def fail():
+        calls.append(1)
+        raise AssertionError("pyvista probe started")
+
+    monkeypatch.setattr(pio, "_run_probe", fail)
+    monkeypatch.setattr(pio, "_PYVISTA_OK", None)
+    return calls
+
+
+@pytest.mark.parametrize("over", [["output.png_times=[]"], ["output.png=false"]])
+def test_no_png_when_none_is_asked_for(tmp_path, no_probe, over):
+    scene = load_scene("gaussian-hill", QUICK + over, "small")
+    res = Simulation(scene, tmp_path / "r", quiet=True).run()
+    assert res.status == "ok"
+    assert list((tmp_path / "r").glob("*.png")) == []
+    assert no_probe == []
+
+
+def test_default_png_times_are_first_and_last_without_probe(tmp_path, no_probe):
+    raw = {  # no output.png_times: t = 0 and t_end
+        "scene": {"name": "t"},
+        "mesh": {"kind": "rectangle", "bounds": [[0, 0], [2, 1]], "cells": [8, 4]},
+        "effects": {"diffusion": True},
+        "transport": {"kappa": 0.01, "initial": "sin(pi*x/2)*sin(pi*y)", "boundary_value": 0},
+        "time": {"t_end": 0.2, "dt": 0.05},
+        "output": {"fields": False, "csv": False},
+    }
+    res = Simulation(validate(raw), tmp_path / "r", quiet=True).run()
+    assert res.status == "ok"
+    names = sorted(p.name for p in (tmp_path / "r").glob("*.png"))
+    assert names == ["T_t0000.000.png", "T_t0000.200.png"]
+    assert no_probe == []  # 2D pictures are drawn with matplotlib
+
+
+def test_probe_runs_once_per_installation(tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.delenv("PFEM2X_PNG_BACKEND", raising=False)
+    monkeypatch.setattr(pio.importlib.util, "find_spec", lambda name: object())
+    calls = []
+
+    def fake_probe():
+        calls.append(1)
+        return True
+
+    monkeypatch.setattr(pio, "_run_probe", fake_probe)
+    for _ in range(3):  # three processes: the cache file answers the second and third
+        monkeypatch.setattr(pio, "_PYVISTA_OK", None)
+        assert pio.pyvista_usable() is True
+    assert len(calls) == 1
+    cache = json.loads(pio.probe_cache_file().read_text())
+    assert list(cache.values()) == [True]
+    assert str(tmp_path) in str(pio.probe_cache_file())
