@@ -142,11 +142,11 @@ class Scene:
 
     def expr(self, section: str, key: str) -> Expression:
         """Compile ``[section].key`` as a scalar expression."""
-        return Expression(self[section][key], self.params, f"{section}.{key}")
+        return Expression(getattr(getattr(self, section), key), self.params, f"{section}.{key}")
 
     def vector_expr(self, section: str, key: str, gdim: int) -> list[Expression]:
         """Compile ``[section].key`` as ``gdim`` component expressions."""
-        v = self[section][key]
+        v = getattr(getattr(self, section), key)
         if v is None:
             raise SceneError(f"{section}.{key}: required")
         if len(v) < gdim:
@@ -483,11 +483,16 @@ def _check_flow(s: dict[str, dict[str, Any]]) -> None:
 
 #: ``scene.case`` → the ``params`` its diagnostics need.
 CASE_PARAMS = {"gaussian-hill": ("x0", "y0", "sigma", "kappa"), "dam-break": ("a", "n2", "g")}
+#: ``scene.case`` → the ``scene.physics`` whose solution its diagnostics measure.
+CASE_PHYSICS = {"zalesak": "transport", "gaussian-hill": "transport", "dam-break": "flow"}
 
 
 def _check_case(s: dict[str, dict[str, Any]], params: Mapping[str, float]) -> None:
     """What the built-in case diagnostics named by ``scene.case`` need."""
     case = s["scene"]["case"]
+    physics = CASE_PHYSICS.get(case, s["scene"]["physics"])
+    if physics != s["scene"]["physics"]:
+        raise SceneError(f"scene.case: {case!r} needs scene.physics = {physics!r}")
     missing = [k for k in CASE_PARAMS.get(case, ()) if k not in params]
     if missing:
         raise SceneError(f"params.{missing[0]}: required by scene.case = {case!r}")
@@ -496,7 +501,7 @@ def _check_case(s: dict[str, dict[str, Any]], params: Mapping[str, float]) -> No
             raise SceneError("transport.exact: required by scene.case = 'zalesak'")
         if s["mesh"]["kind"] in ("interval", "box"):
             raise SceneError("scene.case: 'zalesak' needs a 2D mesh")
-    if case == "dam-break" and not (s["scene"]["physics"] == "flow" and s["effects"]["two_phase"]):
+    if case == "dam-break" and not s["effects"]["two_phase"]:
         raise SceneError("scene.case: 'dam-break' needs effects.two_phase = true")
 
 

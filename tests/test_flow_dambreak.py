@@ -1,4 +1,4 @@
-"""Dam break at density ratio 1000 (scene ``dam-break``), issue 5.
+"""Dam break at density ratio 1000 (scene ``dam-break``).
 
 Water column a x 2a (a = 0.05715 m, Martin & Moyce's n^2 = 2 column) in air,
 to T = t sqrt(2 g/a) = 3.33: the scene as shipped (100 x 50, Courant 5) and

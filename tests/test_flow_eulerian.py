@@ -1,4 +1,4 @@
-"""Eulerian two-phase Navier–Stokes (fractional step + SUPG level set), issue 5.
+"""Eulerian two-phase Navier–Stokes (fractional step + SUPG level set).
 
 Serial and ``mpirun -n 2`` (tests marked ``mpi``); each runs a 16x64 mesh in a few seconds.
 """
@@ -13,7 +13,7 @@ import pytest
 from pfem2x.compat import MPI
 from pfem2x.physics.flow.interface import cut_segments, positive_fraction, segment_distance
 from pfem2x.runner import Simulation, build_domain, make_solver
-from pfem2x.scene import builtin_scenes, load_scene
+from pfem2x.scene import SceneError, builtin_scenes, load_scene
 
 RT = builtin_scenes()["rayleigh-taylor"]
 
@@ -189,7 +189,7 @@ def test_mirror_symmetric_mesh_gives_equal_wall_spikes(shared_tmp):
         sim = Simulation(sc, shared_tmp / diag.replace("/", "_"), quiet=True)
         assert sim.run().status == "ok"
         gap[diag] = interface_height(sim.solver, -0.5) - interface_height(sim.solver, 0.5)
-    assert load_scene("rayleigh-taylor").sections["mesh"]["diagonal"] == "left/right"
+    assert load_scene("rayleigh-taylor").mesh.diagonal == "left/right"
     assert abs(gap["left/right"]) < 1e-6
     assert abs(gap["right"]) > 5e-3
 
@@ -215,6 +215,23 @@ def test_check_refuses_bad_phases(override, needle):
     res = cli("check", "rayleigh-taylor", "--variant", "small", "--set", override)
     assert res.returncode == 2, res.stderr
     assert needle in res.stderr
+
+
+def test_flow_refuses_a_3d_gmsh_file(tmp_path):
+    """The scene cannot see a gmsh file's dimension: the flow solver refuses the built mesh."""
+    geo = tmp_path / "cube.geo"
+    geo.write_text(
+        'SetFactory("OpenCASCADE");\nBox(1) = {0, 0, 0, 1, 1, 1};\nMesh.MeshSizeMax = 0.5;\n'
+    )
+    sc = load_scene(
+        "rayleigh-taylor",
+        ["mesh.kind=gmsh", f'mesh.file="{geo}"', "mesh.partition=rows"],
+        variant="small",
+    )
+    dom = build_domain(sc, MPI.COMM_WORLD)
+    assert dom.gdim == 3
+    with pytest.raises(SceneError, match=r"^mesh\.file: flow is available on 2D meshes only"):
+        make_solver(sc, dom)
 
 
 def test_divergence_exit_3_keeps_last_good(tmp_path):

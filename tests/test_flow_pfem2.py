@@ -1,4 +1,4 @@
-"""PFEM-2 two-phase Navier–Stokes (``method.frame = "lagrangian"``), issue 5.
+"""PFEM-2 two-phase Navier–Stokes (``method.frame = "lagrangian"``).
 
 Serial and ``mpirun -n 2`` (tests marked ``mpi``); 16x64 meshes, a few seconds each.
 """
@@ -34,7 +34,7 @@ def test_flat_interface_at_rest(y0):
     cuts a row of cells: mixed cells give P1/P1 spurious currents of the same
     size as the Eulerian frame's (~1e-2 at t = 1).
     """
-    # the mesh these bounds were measured on (the scene's default until session 4); the
+    # the mesh these bounds were measured on (the scene's former default); the
     # mirror-symmetric left/right mesh gives 1.1e-3 volume change at y0 = 0.01
     s, dom = solver_for(f'phases.heavy.region="y < {y0}"', "mesh.diagonal=right")
     n0 = s.cloud().global_count()
@@ -98,7 +98,7 @@ def test_small_rayleigh_taylor_courant4(shared_tmp):
     sc = load_scene(
         "rayleigh-taylor",
         # the band below was set on the "right" mesh; on the mirror-symmetric left/right
-        # mesh (the scene's default since session 4) the two wall spikes are alike and the
+        # mesh (the scene's default now) the two wall spikes are alike and the
         # falling tip is -0.294, just above the band
         [*LAG, "time.courant=4", "time.t_end=1.4142136", "flow.extra_pass=true"]
         + ["mesh.diagonal=right"],

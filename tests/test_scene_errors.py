@@ -166,9 +166,9 @@ def test_step_override_replaces_the_scene_choice():
     from pfem2x.scene import SceneError, load_scene
 
     s = load_scene("gaussian-hill", ["time.dt=0.1"])
-    assert s["time"]["dt"] == 0.1 and s["time"]["courant"] is None
+    assert s.time.dt == 0.1 and s.time.courant is None
     s = load_scene("gaussian-hill", ["time.courant=2"])
-    assert s["time"]["courant"] == 2.0 and s["time"]["dt"] is None
+    assert s.time.courant == 2.0 and s.time.dt is None
     with pytest.raises(SceneError, match="exactly one"):
         load_scene("gaussian-hill", ["time.dt=0.1", "time.courant=2"])
 

@@ -205,6 +205,22 @@ CROSS = {
         "params.sigma",
     ),
     "dam_break_params": (_with(FLOW, scene={"case": "dam-break"}), "params.a"),
+    "dam_break_transport": (
+        _with(TRANSPORT, scene={"case": "dam-break"}, params={"a": 1, "n2": 2, "g": 1}),
+        "scene.case",
+    ),
+    "zalesak_flow": (
+        _with(FLOW, scene={"case": "zalesak"}, transport={"exact": "x"}),
+        "scene.case",
+    ),
+    "gaussian_hill_flow": (
+        _with(
+            FLOW,
+            scene={"case": "gaussian-hill"},
+            params={"x0": 0.5, "y0": 0.5, "sigma": 0.1, "kappa": 0},
+        ),
+        "scene.case",
+    ),
     "dam_break_one_phase": (
         _with(FLOW, scene={"case": "dam-break"}, params={"a": 1, "n2": 2, "g": 1}),
         "scene.case",

@@ -34,7 +34,7 @@ def periodic_wave(cells, dt, theta, t_end=0.5, frame="eulerian", diffusion=True)
 def final_error(scene):
     comm = MPI.COMM_WORLD
     solver = make_solver(scene, build_domain(scene, comm))
-    dt, t_end = scene["time"]["dt"], scene["time"]["t_end"]
+    dt, t_end = scene.time.dt, scene.time.t_end
     steps = round(t_end / dt)
     t = 0.0
     for k in range(steps):

@@ -78,4 +78,4 @@ def solver_class(physics: str, frame: str) -> type[Solver]:
 
 def make_solver(scene: Scene, domain: Domain) -> Solver:
     """The solver for the scene's physics and frame; only the scene's effects are built."""
-    return solver_class(scene["scene"]["physics"], scene.frame)(scene, domain)
+    return solver_class(scene.physics, scene.frame)(scene, domain)

@@ -101,7 +101,7 @@ class EulerianFlow(FlowSolver):
         self._use_projection(
             PressureProjection(
                 self.V, self.Q, self.gdim, rho, fg, dxq, self.dt_c, self._bcs_u, self._bcs_p,
-                pr.correction, pr.incremental, scene["method"]["preconditioner"], pr.rtol,
+                pr.correction, pr.incremental, scene.method.preconditioner, pr.rtol,
                 self.timer,
             )
         )  # fmt: skip
@@ -152,7 +152,7 @@ class EulerianFlow(FlowSolver):
         L_m = (rho / dt * ufl.dot(un, w) + p_n * ufl.div(w)) * dxq
         if fg is not None:
             L_m = L_m + ufl.dot(fg, w) * dxq
-        if self.scene["method"]["supg"]:
+        if self.scene.method.supg:
             unorm = self._unorm()
             nu = mu / rho
             tau_m = 1.0 / ufl.sqrt(

@@ -111,7 +111,7 @@ from pfem2x.compat import MPI, PETSc
 from pfem2x.mesh import Domain
 from pfem2x.physics.flow.problem import FlowSolver
 from pfem2x.physics.flow.projection import PressureProjection
-from pfem2x.scene import Scene, SceneError
+from pfem2x.scene import Scene
 
 __all__ = ["LagrangianFlow"]
 
@@ -132,21 +132,20 @@ class LagrangianFlow(FlowSolver):
                         "_mom_nodes", "step_count")  # fmt: skip
 
     def __init__(self, scene: Scene, domain: Domain):
-        self._check_sides(scene)
         super().__init__(scene, domain)
         pr = self.problem
-        fl = scene["flow"]
+        fl = scene.flow
         mesh = domain.mesh
-        self.pic_fraction = float(fl["pic_fraction"])
-        self.pic_fraction_light = float(fl["pic_fraction_light"]) if pr.two_phase else 0.0
-        self.mass_weighted = bool(fl["mass_weighted"]) and pr.two_phase
+        self.pic_fraction = float(fl.pic_fraction)
+        self.pic_fraction_light = float(fl.pic_fraction_light) if pr.two_phase else 0.0
+        self.mass_weighted = bool(fl.mass_weighted) and pr.two_phase
         # flow.pressure_step = "total": every particle gets g only (the pressure step
         # then supplies the whole pressure acceleration each step)
         self.gravity_only = not pr.incremental
         self.light_gravity_only = (
-            pr.two_phase and fl["light_source"] == "gravity" and not self.gravity_only
+            pr.two_phase and fl.light_source == "gravity" and not self.gravity_only
         )
-        self.extra_pass = bool(fl["extra_pass"])
+        self.extra_pass = bool(fl.extra_pass)
         self.dt_c = compat.dolfinx.fem.Constant(mesh, PETSc.ScalarType(1.0))
 
         # cell-wise density / viscosity from the particles
@@ -171,22 +170,10 @@ class LagrangianFlow(FlowSolver):
         self._update_force()
         self.volume0 = self.phase_volumes()
 
-    @staticmethod
-    def _check_sides(scene: Scene) -> None:
-        """Refuse box sides this frame cannot do yet (inflow / outflow)."""
-        fl = scene["flow"]
-        for side in ("left", "right", "bottom", "top"):
-            kind = fl[side] or fl["walls"]
-            if kind not in ("slip", "noslip"):
-                raise SceneError(
-                    f"flow.{side if fl[side] else 'walls'}: {kind!r} sides are not available "
-                    "in the lagrangian flow frame yet (slip, noslip)"
-                )
-
     def _seed_particles(self) -> None:
         """The cloud: ``u`` from the mesh velocity, ``phase`` from the region (two phases)."""
         pr = self.problem
-        meth = self.scene["method"]
+        meth = self.scene.method
         fields: dict[str, Any] = {"u": (self.gdim,)}
         if pr.two_phase:
             fields["phase"] = ()
@@ -196,7 +183,7 @@ class LagrangianFlow(FlowSolver):
         # nodal (sum w rho u, sum w rho) / sum w of the mass-weighted projection
         self._mom_nodes = np.zeros((len(self.coords), self.gdim + 1))
         self._mom_nodes[:, -1] = 1.0
-        P.seed_cells(self.cloud_, meth["particles_per_cell"], seed=meth["seed"])
+        P.seed_cells(self.cloud_, meth.particles_per_cell, seed=meth.seed)
         P.interpolate(self.cloud_, "u", self.u)
         if pr.two_phase:
             region = pr.phases[0][3]
@@ -218,7 +205,7 @@ class LagrangianFlow(FlowSolver):
             PressureProjection(
                 self.V, self.Q, self.gdim, self.rho, self.rho * g if grav else None, dx,
                 self.dt_c, self._bcs_u, self._bcs_p, pr.correction, pr.incremental,
-                self.scene["method"]["preconditioner"], pr.rtol, self.timer,
+                self.scene.method.preconditioner, pr.rtol, self.timer,
             )
         )  # fmt: skip
         v, w = ufl.TrialFunction(self.V), ufl.TestFunction(self.V)
@@ -298,17 +285,17 @@ class LagrangianFlow(FlowSolver):
     def _move(self, dt: float, theta: float) -> None:
         """Step 1: X-IVAS move along ``u^n`` (+ ``theta``: ``u^{n+1}``) with the source."""
         c = self.cloud_
-        meth = self.scene["method"]
+        meth = self.scene.method
         self._kick(0.5 * dt)
         if theta > 0.0:
             P.advect(
                 c, self._u_old, dt, velocity_next=self.u, theta=theta,
-                courant=meth["substep_courant"], gradient_courant=meth["substep_gradient"],
+                courant=meth.substep_courant, gradient_courant=meth.substep_gradient,
             )  # fmt: skip
         else:
             P.advect(
-                c, self.u, dt, courant=meth["substep_courant"],
-                gradient_courant=meth["substep_gradient"],
+                c, self.u, dt, courant=meth.substep_courant,
+                gradient_courant=meth.substep_gradient,
             )  # fmt: skip
         self._kick(0.5 * dt)  # storage may have been reordered / migrated in between
 
@@ -424,7 +411,7 @@ class LagrangianFlow(FlowSolver):
         by moving the light phase.
         """
         c = self.cloud_
-        meth = self.scene["method"]["projection"]
+        meth = self.scene.method.projection
         meth = "average" if meth == "auto" else meth
         if not self.mass_weighted:
             P.project(c, "u", self.u_hat, method=meth, empty="neighbours")
@@ -472,14 +459,14 @@ class LagrangianFlow(FlowSolver):
     def _rebalance(self) -> None:
         """Step 5: population control; the phase stays sharp."""
         c = self.cloud_
-        meth = self.scene["method"]
-        nmin, nmax = meth["min_particles_per_cell"], meth["max_particles_per_cell"]
+        meth = self.scene.method
+        nmin, nmax = meth.min_particles_per_cell, meth.max_particles_per_cell
         if nmin > 0 or nmax > 0:
             fb = {"u": self.u}
             if self.problem.two_phase:
                 fb["phase"] = self.phase
             self.last_population = P.rebalance(
-                c, nmin, nmax, seed=meth["seed"] + 7919 * (self.step_count + 1), fallback=fb
+                c, nmin, nmax, seed=meth.seed + 7919 * (self.step_count + 1), fallback=fb
             )
             if self.problem.two_phase:
                 ph = c.field("phase")

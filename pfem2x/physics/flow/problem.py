@@ -55,46 +55,44 @@ class FlowProblem:
 
     def __init__(self, scene: Scene, gdim: int):
         eff = scene.effects
-        fl = scene["flow"]
+        fl = scene.flow
         phases = []
-        for name, ph in scene["phases"].items():
+        for name, ph in scene.phases.items():
             region = (
-                Expression(ph["region"], scene.params, f"phases.{name}.region")
-                if "region" in ph
+                Expression(ph.region, scene.params, f"phases.{name}.region")
+                if ph.region is not None
                 else None
             )
-            mu = float(ph["viscosity"]) if eff["viscosity"] else 0.0
-            phases.append((name, float(ph["density"]), mu, region))
+            mu = float(ph.viscosity) if eff.viscosity else 0.0
+            phases.append((name, float(ph.density), mu, region))
         phases.sort(key=lambda p: p[3] is None)
         self.phases = phases
-        self.two_phase = bool(eff["two_phase"])
+        self.two_phase = bool(eff.two_phase)
         g = np.zeros(gdim)
-        if eff["gravity"]:
-            gv = np.asarray(fl["gravity"], dtype=float)
+        if eff.gravity:
+            gv = np.asarray(fl.gravity, dtype=float)
             g[: min(gdim, len(gv))] = gv[:gdim]
         self.gravity = g
-        self.sides = {s: (fl[s] or fl["walls"]) for s in FLOW_SIDES[: 2 * gdim]}
+        self.sides = {s: fl.side(s) for s in FLOW_SIDES[: 2 * gdim]}
         self.initial_velocity = (
             scene.vector_expr("flow", "initial_velocity", gdim)
-            if fl["initial_velocity"] is not None
+            if fl.initial_velocity is not None
             else None
         )
         self.inflow_velocity = (
             scene.vector_expr("flow", "inflow_velocity", gdim)
-            if fl["inflow_velocity"] is not None
+            if fl.inflow_velocity is not None
             else None
         )
-        if "inflow" in self.sides.values() and self.inflow_velocity is None:
-            raise SceneError("flow.inflow_velocity: required with an inflow side")
         self.velocity_scale = scene.expr("flow", "velocity_scale").value()
         self.time_factor = scene.expr("flow", "time_factor").value()
         self.max_speed = scene.expr("flow", "max_speed").value()
-        self.interface_width = float(fl["interface_width"])
-        self.reinit_every = int(fl["reinit_every"])
-        self.rtol = float(fl["rtol"])
-        self.correction = str(fl["correction"])
-        self.incremental = fl["pressure_step"] == "increment"
-        self.quadrature_degree = int(fl["quadrature_degree"])
+        self.interface_width = float(fl.interface_width)
+        self.reinit_every = int(fl.reinit_every)
+        self.rtol = float(fl.rtol)
+        self.correction = str(fl.correction)
+        self.incremental = fl.pressure_step == "increment"
+        self.quadrature_degree = int(fl.quadrature_degree)
 
 
 class FlowSolver(Solver):
@@ -111,10 +109,11 @@ class FlowSolver(Solver):
 
     def __init__(self, scene: Scene, domain: Domain):
         super().__init__(scene, domain)
-        if domain.gdim != 2:
-            raise SceneError("mesh.kind: flow is available on 2D meshes only (for now)")
-        if any(domain.periodic):
-            raise SceneError("mesh.periodic: periodic flow is not available yet")
+        if domain.gdim != 2:  # a gmsh file's dimension is known once it is meshed
+            raise SceneError(
+                f"mesh.file: flow is available on 2D meshes only (for now), "
+                f"the file's mesh is {domain.gdim}D"
+            )
         self.problem = pr = FlowProblem(scene, domain.gdim)
         mesh = domain.mesh
         self.gdim = gdim = domain.gdim
@@ -156,7 +155,7 @@ class FlowSolver(Solver):
         self._bcs_u, self._bcs_p, self._inflow = self._boundary_conditions()
         #: phase volumes at the start (set by the frame once its phases are known)
         self.volume0: dict[str, float] = {}
-        self.case = make_case(scene["scene"]["case"], self)  # scene.case diagnostics
+        self.case = make_case(scene.scene.case, self)  # scene.case diagnostics
         #: the pressure step (a frame creates it once its density is known)
         self.projection: Any = None
         self.u_star: Any = None

@@ -54,8 +54,8 @@ class CharacteristicTransport(TransportBase):
     def __init__(self, scene: Scene, domain: Domain):
         super().__init__(scene, domain)
         p = self.problem
-        self.theta = float(scene["method"]["theta"])
-        self.source_path = scene["method"]["source_integration"] == "path"
+        self.theta = float(scene.method.theta)
+        self.source_path = scene.method.source_integration == "path"
         self.terms: list[str] = p.active_terms()
         gdim = domain.gdim
         self.nodes = np.ascontiguousarray(self.coords[: self.n_owned_dofs, :gdim])

@@ -48,7 +48,7 @@ class EulerianTransport(TransportBase):
     def __init__(self, scene: Scene, domain: Domain):
         super().__init__(scene, domain)
         p = self.problem
-        meth = scene["method"]
+        meth = scene.method
         self.dt_c = compat.dolfinx.fem.Constant(domain.mesh, PETSc.ScalarType(1.0))
         self.terms: list[str] = ["mass"]
         self._coeffs: list[Coefficient] = []
@@ -60,12 +60,12 @@ class EulerianTransport(TransportBase):
         self.time_dependent_lhs = (
             (not p.steady_velocity and p.velocity is not None)
             or any(c.time_dependent for c in self._coeffs)
-            or bool(meth["supg"])
+            or bool(meth.supg)
         )
         self.A = None
         self.b = compat.create_vector(self.L)
         self._dt_assembled: float | None = None
-        kind = "gmres" if (self.vel_1 is not None or meth["supg"]) else "cg"
+        kind = "gmres" if (self.vel_1 is not None or meth.supg) else "cg"
         self.system = MeshSystem(self, kind)
 
     def _coefficients(self) -> tuple[Any, Any]:
@@ -97,12 +97,12 @@ class EulerianTransport(TransportBase):
     def _forms(self, kap: Any, rea: Any) -> tuple[Any, Any]:
         """The θ-method's bilinear and linear forms (UFL)."""
         p = self.problem
-        meth = self.scene["method"]
+        meth = self.scene.method
         V, Tn, dt = self.V, self.T, self.dt_c
         vel_n, vel_1 = self.vel_n, self.vel_1
         T = ufl.TrialFunction(V)
         w = ufl.TestFunction(V)
-        th = PETSc.ScalarType(meth["theta"])
+        th = PETSc.ScalarType(meth.theta)
 
         def op(u: Any, ww: Any, vel: Any | None) -> Any:
             out = 0
@@ -116,7 +116,7 @@ class EulerianTransport(TransportBase):
 
         # Test function, optionally SUPG-weighted with the new velocity.
         wt = w
-        if meth["supg"] and vel_1 is not None:
+        if meth.supg and vel_1 is not None:
             self.terms.append("supg")
             h = ufl.CellDiameter(self.domain.mesh)
             vnorm = ufl.sqrt(ufl.dot(vel_1, vel_1)) + 1e-12

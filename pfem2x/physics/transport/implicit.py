@@ -28,7 +28,7 @@ class MeshSystem:
     def __init__(self, base: TransportBase, kind: str):
         self.pc = base.periodic_constraint()
         self.kind = kind
-        self.preconditioner = base.scene["method"]["preconditioner"]
+        self.preconditioner = base.scene.method.preconditioner
         self.solver: fem.LinearSolver | None = None
         self.Ar: Any = None
 
@@ -76,7 +76,7 @@ class ImplicitPart:
         V = base.V
         mesh = base.domain.mesh
         self.base = base
-        self.theta = float(base.scene["method"]["theta"])
+        self.theta = float(base.scene.method.theta)
         self.dt_c = compat.dolfinx.fem.Constant(mesh, PETSc.ScalarType(1.0))
         self.That = compat.dolfinx.fem.Function(V)
         T = ufl.TrialFunction(V)

@@ -76,14 +76,14 @@ class LagrangianTransport(TransportBase):
 
         self.P = P
         p = self.problem
-        meth = scene["method"]
-        self.theta = float(meth["theta"])
-        self.source_path = meth["source_integration"] == "path"
-        self.projection = "linear" if meth["projection"] == "auto" else meth["projection"]
+        meth = scene.method
+        self.theta = float(meth.theta)
+        self.source_path = meth.source_integration == "path"
+        self.projection = "linear" if meth.projection == "auto" else meth.projection
         self.terms: list[str] = p.active_terms()
         f = p.field
         self.cloud_ = P.Cloud(domain, {f: ()})
-        P.seed_cells(self.cloud_, meth["particles_per_cell"], seed=meth["seed"])
+        P.seed_cells(self.cloud_, meth.particles_per_cell, seed=meth.seed)
         # particles carry the exact initial field (its sub-cell shape), the mesh its interpolant
         self.cloud_.field(f)[:] = p.initial(self.cloud_.x, 0.0)
         self.implicit = (
@@ -140,7 +140,7 @@ class LagrangianTransport(TransportBase):
     def step(self, t: float, dt: float) -> None:
         P = self.P
         p = self.problem
-        meth = self.scene["method"]
+        meth = self.scene.method
         c = self.cloud_
         f = p.field
         self.step_count += 1
@@ -159,10 +159,10 @@ class LagrangianTransport(TransportBase):
                 self.dT.x.array[:] = self.T.x.array - self.That.x.array
                 P.add_increment(c, f, self.dT)
             # 6. population control
-            nmin, nmax = meth["min_particles_per_cell"], meth["max_particles_per_cell"]
+            nmin, nmax = meth.min_particles_per_cell, meth.max_particles_per_cell
             if nmin > 0 or nmax > 0:
                 self.last_population = P.rebalance(
-                    c, nmin, nmax, seed=meth["seed"] + self.step_count, fallback={f: self.T}
+                    c, nmin, nmax, seed=meth.seed + self.step_count, fallback={f: self.T}
                 )
         self.require_finite(f"particle field {f}", c.field(f))
 
@@ -193,7 +193,7 @@ class LagrangianTransport(TransportBase):
     def _advect(self, t: float, dt: float) -> None:
         """Steps 1-2 with a velocity: the move kernel with the source along the path."""
         p = self.problem
-        meth = self.scene["method"]
+        meth = self.scene.method
         src = p.source
         if src is None:
             qf = None
@@ -218,8 +218,8 @@ class LagrangianTransport(TransportBase):
             vel,
             dt,
             t=t,
-            courant=meth["substep_courant"],
-            gradient_courant=meth["substep_gradient"],
+            courant=meth.substep_courant,
+            gradient_courant=meth.substep_gradient,
             substeps=self.substeps(t, dt) if (src is not None or vel is not self.vel_n) else None,
             source=qf,
             source_field=p.field if src is not None else None,

@@ -49,18 +49,18 @@ class TransportProblem:
 
     def __init__(self, scene: Scene, gdim: int):
         eff = scene.effects
-        tr = scene["transport"]
-        self.field = tr["field"]
+        tr = scene.transport
+        self.field = tr.field
         self.velocity: list[Expression] | None = (
-            scene.vector_expr("transport", "velocity", gdim) if eff["advection"] else None
+            scene.vector_expr("transport", "velocity", gdim) if eff.advection else None
         )
-        self.kappa = scene.expr("transport", "kappa") if eff["diffusion"] else None
-        self.source = scene.expr("transport", "source") if eff["source"] else None
-        self.reaction = scene.expr("transport", "reaction") if eff["reaction"] else None
+        self.kappa = scene.expr("transport", "kappa") if eff.diffusion else None
+        self.source = scene.expr("transport", "source") if eff.source else None
+        self.reaction = scene.expr("transport", "reaction") if eff.reaction else None
         self.initial = scene.expr("transport", "initial")
-        self.exact = scene.expr("transport", "exact") if tr["exact"] is not None else None
+        self.exact = scene.expr("transport", "exact") if tr.exact is not None else None
         self.boundary_value = (
-            scene.expr("transport", "boundary_value") if tr["boundary_value"] is not None else None
+            scene.expr("transport", "boundary_value") if tr.boundary_value is not None else None
         )
         self.steady_velocity = self.velocity is None or all(
             e.constant or "t" not in e.names for e in self.velocity
@@ -160,7 +160,7 @@ class TransportBase(Solver):
         self.n_owned_dofs = int(self.V.dofmap.index_map.size_local)
         self._pc: PeriodicConstraint | None = None
         self._substeps_last: tuple[float | None, int] = (None, 0)  # (dt, count) of the last step
-        self.case = make_case(scene["scene"]["case"], self)
+        self.case = make_case(scene.scene.case, self)
 
     # -- helpers shared by the frames ---------------------------------------
     def periodic_constraint(self) -> PeriodicConstraint | None:
@@ -216,7 +216,7 @@ class TransportBase(Solver):
         if self.problem.velocity is None:
             return 1
         vmax = max(self.max_velocity(t), self.max_velocity(t + dt))
-        c = vmax * dt / (self.scene["method"]["substep_courant"] * self.domain.min_h())
+        c = vmax * dt / (self.scene.method.substep_courant * self.domain.min_h())
         n = max(1, int(np.ceil(c - 1e-9)))
         last_dt, last_n = self._substeps_last
         if last_dt == dt:
