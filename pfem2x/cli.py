@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
             dt, steps = time_grid(scene, domain, solver)
             if comm.rank == 0:
                 print(
-                    f"ok: {scene.name} ({scene['scene']['physics']}, {scene.frame}), "
+                    f"ok: {scene.name} ({scene.physics}, {scene.frame}), "
                     f"{domain.num_cells_global()} cells, {steps} steps of dt = {dt:.4g}"
                 )
             return 0

@@ -109,16 +109,16 @@ class TransportGrowthGuard:
     """
 
     def __init__(self, scene: Scene, domain: Domain, factor: float, t0_abs: float):
-        eff, tr = scene.effects, scene["transport"]
+        eff, tr = scene.effects, scene.transport
         self.factor = factor
-        self.field = tr["field"]
+        self.field = tr.field
         self.t0_abs = t0_abs
         self.x = np.asarray(domain.mesh.geometry.x)
         self.comm = domain.comm
-        self.source = scene.expr("transport", "source") if eff["source"] else None
-        self.reaction = scene.expr("transport", "reaction") if eff["reaction"] else None
+        self.source = scene.expr("transport", "source") if eff.source else None
+        self.reaction = scene.expr("transport", "reaction") if eff.reaction else None
         self.boundary = (
-            scene.expr("transport", "boundary_value") if tr["boundary_value"] is not None else None
+            scene.expr("transport", "boundary_value") if tr.boundary_value is not None else None
         )
 
     def _data(self, t: float) -> tuple[float, float, float]:
@@ -173,19 +173,19 @@ class Guards:
     """
 
     def __init__(self, scene: Scene, domain: Domain, solver: Solver, d0: dict[str, float]):
-        tm = scene["time"]
-        max_courant = tm["max_courant"]
+        tm = scene.time
+        max_courant = tm.max_courant
         if max_courant is None:
-            max_courant = 50.0 * tm["courant"] if tm["courant"] is not None else 1000.0
+            max_courant = 50.0 * tm.courant if tm.courant is not None else 1000.0
         self.h_min = domain.min_h()
-        self.steps = MaxStepsGuard(tm["max_steps"])
+        self.steps = MaxStepsGuard(tm.max_steps)
         self.finite = FiniteGuard(solver)
         self.courant = CourantGuard(max_courant)
-        self.energy = EnergyGuard(tm["max_energy_growth"], solver.energy_scale())
+        self.energy = EnergyGuard(tm.max_energy_growth, solver.energy_scale())
         self.growth = None
-        if scene["scene"]["physics"] == "transport" and tm["max_growth"] > 0.0:
+        if scene.physics == "transport" and tm.max_growth > 0.0:
             t0 = max(abs(d0.get("max", 0.0)), abs(d0.get("min", 0.0)))
-            self.growth = TransportGrowthGuard(scene, domain, tm["max_growth"], t0)
+            self.growth = TransportGrowthGuard(scene, domain, tm.max_growth, t0)
 
     def start(self, loop: Any) -> None:
         """Initialise the guards' loop state if it lacks it (a new run, an old checkpoint)."""

@@ -184,12 +184,12 @@ class AtTimes:
 def png_times(scene: Scene) -> list[float]:
     """The PNG snapshot times: none with ``output.png = false`` or ``png_times = []``,
     the first and last time when ``png_times`` is not given."""
-    outp = scene["output"]
-    if not outp["png"]:
+    outp = scene.output
+    if not outp.png:
         return []
-    if outp["png_times"] is None:
-        return [0.0, scene["time"]["t_end"]]
-    return list(outp["png_times"])
+    if outp.png_times is None:
+        return [0.0, scene.time.t_end]
+    return list(outp.png_times)
 
 
 # -- writers ---------------------------------------------------------------------------
@@ -224,22 +224,22 @@ class Outputs:
         resume_step: int | None = None,
         keep_rows: int | None = None,
     ):
-        outp = scene["output"]
+        outp = scene.output
         self.scene, self.comm, self.out, self.solver = scene, comm, out, solver
         self.last_out = -1
-        self.field_schedule = EveryInterval(outp["every"])
+        self.field_schedule = EveryInterval(outp.every)
         self.png_schedule = AtTimes(png_times(scene))
         cloud = solver.cloud()
         self.particles = (
-            pio.ParticleWriter(comm, out) if outp["particles"] and cloud is not None else None
+            pio.ParticleWriter(comm, out) if outp.particles and cloud is not None else None
         )
         xdmf = "fields.xdmf" if resume_step is None else f"fields_resumed_{resume_step}.xdmf"
         self.fields = (
             pio.FieldWriter(comm, out / xdmf, domain.mesh)
-            if outp["fields"] and solver.fields()
+            if outp.fields and solver.fields()
             else None
         )
-        self.csv = pio.CSVWriter(comm, out / "diagnostics.csv", keep_rows) if outp["csv"] else None
+        self.csv = pio.CSVWriter(comm, out / "diagnostics.csv", keep_rows) if outp.csv else None
 
     # -- checkpoint state ---------------------------------------------------------------
     def state(self) -> dict[str, Any]:
@@ -376,7 +376,7 @@ def summary(
     return {
         "scene": scene.name,
         "source": scene.source,
-        "physics": scene["scene"]["physics"],
+        "physics": scene.physics,
         "frame": scene.frame,
         "solver": solver.name,
         "effects": [k for k, v in scene.effects.items() if v],

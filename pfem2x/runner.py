@@ -72,17 +72,17 @@ class RunResult:
 
 def build_domain(scene: Scene, comm: MPI.Comm) -> Domain:
     """The scene's mesh as a :class:`~pfem2x.mesh.Domain` (SceneError on bad mesh input)."""
-    m = scene["mesh"]
+    m = scene.mesh
     try:
         return build_mesh(
             comm,
-            m["kind"],
-            bounds=m["bounds"],
-            cells=m["cells"],
-            diagonal=m["diagonal"],
-            file=m["file"],
-            periodic=m["periodic"],
-            partition=m["partition"],
+            m.kind,
+            bounds=m.bounds,
+            cells=m.cells,
+            diagonal=m.diagonal,
+            file=m.file,
+            periodic=m.periodic,
+            partition=m.partition,
         )
     except MeshError as exc:
         raise SceneError(str(exc)) from None
@@ -267,7 +267,7 @@ class Simulation:
         self.setup()
         self._start()
         status, code, message = "ok", EXIT_OK, ""
-        lp, ck_every = self.loop, self.scene["output"]["checkpoint_every"]
+        lp, ck_every = self.loop, self.scene.output.checkpoint_every
         bar = self._progress(self.time.steps, lp.step)
         self.startup_seconds = pout.startup_seconds(run_started)
         try:

@@ -26,18 +26,16 @@ def time_grid(scene: Scene, domain: Domain, solver: Solver) -> tuple[float, int]
     (:class:`SceneError`) a zero velocity with ``time.courant`` and more
     steps than ``time.max_steps``.
     """
-    t_end = scene["time"]["t_end"]
-    dt = scene["time"]["dt"]
+    t_end = scene.time.t_end
+    dt = scene.time.dt
     if dt is None:
         vmax = solver.max_velocity(0.0)
         if vmax <= 0.0:
             raise SceneError("time.courant: the velocity is zero at t = 0; give time.dt instead")
-        dt = scene["time"]["courant"] * domain.min_h() / vmax
+        dt = scene.time.courant * domain.min_h() / vmax
     steps = max(1, math.ceil(t_end / dt - 1e-9))
-    if steps > scene["time"]["max_steps"]:
-        raise SceneError(
-            f"time: {steps} steps exceed time.max_steps = {scene['time']['max_steps']}"
-        )
+    if steps > scene.time.max_steps:
+        raise SceneError(f"time: {steps} steps exceed time.max_steps = {scene.time.max_steps}")
     return t_end / steps, steps
 
 
@@ -104,8 +102,8 @@ class AdaptiveStep(TimeControl):
 
 def make_time_control(scene: Scene, domain: Domain, solver: Solver) -> TimeControl:
     """The scene's time control (:class:`SceneError` on an impossible plan)."""
-    tm = scene["time"]
+    tm = scene.time
     dt, steps = time_grid(scene, domain, solver)
-    if tm["adaptive"] and tm["courant"] is not None:
-        return AdaptiveStep(dt, steps, tm["t_end"], tm["courant"], domain.min_h())
-    return UniformStep(dt, steps, tm["t_end"])
+    if tm.adaptive and tm.courant is not None:
+        return AdaptiveStep(dt, steps, tm.t_end, tm.courant, domain.min_h())
+    return UniformStep(dt, steps, tm.t_end)
