@@ -164,6 +164,32 @@ def test_failed_child_is_a_row(tmp_path):
     assert (tmp_path / "fail" / "study.csv").is_file()
 
 
+DRIVER_ONLY = """
+import shutil, sys
+import pfem2x.cli
+from pfem2x.study import run_study
+res = run_study("gaussian-hill", ["time.courant=2,5"], variant="small", out=sys.argv[1],
+                quiet=True, python=shutil.which("false") or "/bin/false")
+assert [r["status"] for r in res.rows] == ["failed", "failed"], res.rows
+heavy = ("dolfinx", "mpi4py", "petsc4py", "ufl", "basix", "numba")
+print(" ".join(sorted({m.split(".")[0] for m in sys.modules} & set(heavy))))
+"""
+
+
+def test_driver_imports_neither_dolfinx_nor_mpi(tmp_path):
+    # The driver is serial: planning, running the children and writing the tables load
+    # no DOLFINx, MPI or numba (the children do).
+    res = subprocess.run(
+        [sys.executable, "-c", DRIVER_ONLY, str(tmp_path / "light")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == ""
+    assert (tmp_path / "light" / "study.csv").is_file()
+
+
 def test_split_values():
     assert split_values("0.5,2,5") == ["0.5", "2", "5"]
     assert split_values("[50,200], [100,400]") == ["[50,200]", "[100,400]"]
