@@ -162,3 +162,17 @@ def test_exact_solution_scenes_run(shared_tmp, scene, frame):
 def test_channel_is_eulerian_only():
     with pytest.raises(SceneError, match="flow.left"):
         load_scene("channel", ['method.frame="lagrangian"'], variant="small")
+
+
+@pytest.mark.parametrize(
+    "override, key",
+    [
+        ('flow.exact_velocity=["foo(x)", "0"]', "flow.exact_velocity[0]"),
+        ('flow.exact_velocity=["x"]', "flow.exact_velocity"),
+        ('flow.exact_pressure="q*x"', "flow.exact_pressure"),
+        ("flow.exact_pressure=true", "flow.exact_pressure"),
+    ],
+)
+def test_bad_exact_solution_names_the_key(override, key):
+    with pytest.raises(SceneError, match=f"^{key.replace('[', '.').replace(']', '.')}"):
+        load_scene("taylor-green", [override], variant="small")
