@@ -17,7 +17,8 @@ from pfem2x.compat import PETSc
 
 __all__ = ["COUNTERS", "LinearSolver", "assemble_matrix", "reset_counters"]
 
-#: Process-wide counts: ``matrix_assemblies``, ``vector_assemblies``, ``solves``.
+#: Process-wide counts: ``matrix_assemblies``, ``vector_assemblies``, ``solves``
+#: (and ``error_integrals``: exact-solution error integrals of the flow diagnostics).
 COUNTERS: Counter[str] = Counter()
 
 

@@ -514,10 +514,12 @@ def _check_expressions(scene: Scene) -> None:
             fl = scene.flow
             for k in ("velocity_scale", "time_factor", "max_speed"):
                 scene.expr("flow", k)
-            for k in ("initial_velocity", "inflow_velocity"):
+            for k in ("initial_velocity", "inflow_velocity", "exact_velocity"):
                 v = getattr(fl, k)
                 if v is not None:
                     scene.vector_expr("flow", k, gdim if structured else min(gdim, len(v)))
+            if fl.exact_pressure is not None:
+                scene.expr("flow", "exact_pressure")
             for name, ph in scene.phases.items():
                 if ph.region is not None:
                     Expression(ph.region, scene.params, f"phases.{name}.region")

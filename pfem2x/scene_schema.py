@@ -311,6 +311,17 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "gravity": Key(list_of(number(), 1, 3), doc="gravity vector (effects.gravity)"),
         "velocity_scale": Key(expr_text, 0.0, doc="speed for time.courant while at rest"),
         "initial_velocity": Key(list_of(expr_text, 1, 3), doc="initial velocity (default 0)"),
+        "exact_velocity": Key(
+            list_of(expr_text, 1, 3),
+            doc="exact velocity (expressions of x, y, t, params): enables velocity_l2_error = "
+            "||u_h - u||_L2 / sqrt(|Omega|) (degree-6 quadrature of the expression) and its "
+            "_time_avg, _final, _max metrics",
+        ),
+        "exact_pressure": Key(
+            expr_text,
+            doc="exact pressure: enables pressure_l2_error, the same norm after removing the "
+            "mean over the domain from both pressures (a closed box defines p up to a constant)",
+        ),
         "time_factor": Key(expr_text, 1.0, doc="reported time tau = t * time_factor"),
         "walls": Key(choice(*FLOW_BOUNDARIES), "slip", doc="kind of every box side not named"),
         **{s: Key(choice(*FLOW_BOUNDARIES), doc=f"{s} box side") for s in FLOW_SIDES},
@@ -419,6 +430,8 @@ for _dotted, _doc in _DOCS.items():
 #: ``[flow]`` keys read by both flow frames.
 FLOW_COMMON_KEYS = (
     *(f"flow.{k}" for k in ("gravity", "velocity_scale", "initial_velocity", "time_factor")),
+    "flow.exact_velocity",
+    "flow.exact_pressure",
     "flow.walls",
     *(f"flow.{s}" for s in FLOW_SIDES),
     *(f"flow.{k}" for k in ("max_speed", "pressure_step", "correction", "rtol")),

@@ -187,6 +187,8 @@ class FlowSection(Section):
     gravity: tuple[float, ...] | None
     velocity_scale: ExprText
     initial_velocity: tuple[ExprText, ...] | None
+    exact_velocity: tuple[ExprText, ...] | None
+    exact_pressure: ExprText | None
     time_factor: ExprText
     walls: str
     left: str | None

@@ -15,6 +15,11 @@ Boundaries of a box domain, per side (``flow.left``, ``right``, ``bottom``,
 ``noslip``, ``inflow`` (``flow.inflow_velocity``) and ``outflow`` (do-nothing,
 :math:`\\delta p = 0`).
 
+Exact solutions (``flow.exact_velocity``, ``flow.exact_pressure``): the
+diagnostics add ``velocity_l2_error`` / ``pressure_l2_error`` (domain RMS, the
+pressure compared after removing its mean; :mod:`pfem2x.physics.flow.exact`),
+and nothing is evaluated without them.
+
 Time: the runner works in solver time ``t``; diagnostics also report
 ``tau = t * flow.time_factor`` (e.g. Tryggvason's units for Rayleigh–Taylor).
 """
@@ -31,6 +36,7 @@ from pfem2x.compat import MPI, PETSc
 from pfem2x.expr import Expression
 from pfem2x.mesh import Domain
 from pfem2x.physics.base import Diverged, Solver
+from pfem2x.physics.flow.exact import ExactFlowError
 from pfem2x.physics.flow.interface import InterfaceGeometry
 from pfem2x.scene import FLOW_SIDES, Scene, SceneError
 
@@ -51,6 +57,8 @@ class FlowProblem:
         ``(gdim,)`` array (zeros without ``effects.gravity``).
     sides:
         Box side name → ``slip | noslip | inflow | outflow``.
+    exact_velocity, exact_pressure:
+        Exact solution (component expressions, expression) or ``None``.
     """
 
     def __init__(self, scene: Scene, gdim: int):
@@ -83,6 +91,14 @@ class FlowProblem:
             scene.vector_expr("flow", "inflow_velocity", gdim)
             if fl.inflow_velocity is not None
             else None
+        )
+        self.exact_velocity = (
+            scene.vector_expr("flow", "exact_velocity", gdim)
+            if fl.exact_velocity is not None
+            else None
+        )
+        self.exact_pressure = (
+            scene.expr("flow", "exact_pressure") if fl.exact_pressure is not None else None
         )
         self.velocity_scale = scene.expr("flow", "velocity_scale").value()
         self.time_factor = scene.expr("flow", "time_factor").value()
@@ -137,6 +153,14 @@ class FlowSolver(Solver):
         inv = tab.inv_map[: self.n_owned]
         self._gradlam = np.concatenate([-inv.sum(axis=1, keepdims=True), inv], axis=1)
         self._hcell = tab.h_edge[: self.n_owned]
+        self._volume = float(self.comm.allreduce(float(self.cell_vol.sum()), op=MPI.SUM))
+        #: errors against the exact solution (``None`` without one: nothing is evaluated)
+        self.exact: ExactFlowError | None = None
+        if pr.exact_velocity is not None or pr.exact_pressure is not None:
+            self.exact = ExactFlowError(
+                self.comm, self.cell_xy, self.cell_vol, self.dofmap[: self.n_owned],
+                pr.exact_velocity, pr.exact_pressure,
+            )  # fmt: skip
         # -g.x at the cell centroids: potential energy = sum rho_K |K| (-g.x_K) (exact for DG0 rho)
         g = pr.gravity[:gdim]
         self._gravity_height = -(self.cell_xy.mean(axis=1) @ g) if np.any(g) else None
@@ -234,10 +258,13 @@ class FlowSolver(Solver):
         nv = uc.shape[1]
         u2 = (np.sum(uc**2, axis=(1, 2)) + np.sum(uc.sum(axis=1) ** 2, axis=1)) / (nv * (nv + 1))
         ke = 0.5 * np.sum(rho_c * u2 * self.cell_vol)
+        div2 = float(comm.allreduce(float(np.dot(self.cell_vol, div**2)), op=MPI.SUM))
         d = {
             "tau": t * self.problem.time_factor,
             "kinetic_energy": float(comm.allreduce(ke, op=MPI.SUM)),
             "div_max": float(comm.allreduce(np.abs(div).max() if len(div) else 0.0, op=MPI.MAX)),
+            # domain RMS of the (cell-wise constant) divergence
+            "div_rms": float(np.sqrt(div2 / self._volume)),
             "speed_max": float(comm.allreduce(speed_c.max() if len(speed_c) else 0.0, op=MPI.MAX)),
             "courant": float(
                 comm.allreduce(
@@ -255,6 +282,8 @@ class FlowSolver(Solver):
             d[f"volume_change_{name}"] = (v - v0) / v0 if v0 else 0.0
         if self.problem.two_phase:
             d["tip_falling"], d["tip_rising"] = self.tips()
+        if self.exact is not None:
+            d.update(self.exact.diagnostics(u, self.p.x.array, t))
         d.update(self.case.diagnostics(self, t))
         return d
 
@@ -264,6 +293,7 @@ class FlowSolver(Solver):
         out: dict[str, Any] = {
             "kinetic_energy_final": history[-1]["kinetic_energy"],
             "div_max": max(h["div_max"] for h in history),
+            "div_rms_max": max(h.get("div_rms", 0.0) for h in history),
             "courant_max": max(h["courant"] for h in history),
             "speed_max": max(h["speed_max"] for h in history),
         }
@@ -282,6 +312,7 @@ class FlowSolver(Solver):
             out["tip_falling"] = [[h["tau"], h["tip_falling"]] for h in history]
             out["tip_rising"] = [[h["tau"], h["tip_rising"]] for h in history]
         out["tau_factor"] = self.problem.time_factor
+        out.update(ExactFlowError.metrics(history))
         out.update(self.case.metrics(history))
         return out
 
