@@ -1,13 +1,16 @@
 """Numba kernels of the particle layer (no DOLFINx, no MPI, no Python objects).
 
-Every kernel works on plain arrays and loops over particles or cells in
-compiled code. All of them are written for any dimension 1..3 and work with
-Numba 0.56 (Debian) and 0.68 (PyPI).
+Every kernel works on plain arrays of the cached mesh arrays (see
+:class:`pfem2x.particles.pmesh.ParticleMesh`) and loops over particles or
+cells in compiled code. All of them are written for any dimension 1..3 and
+work with Numba 0.56 (Debian) and 0.68 (PyPI).
 
-The mesh reaches the kernels packed in one :class:`MeshArrays` tuple (built
-once per mesh by :class:`pfem2x.particles.pmesh.ParticleMesh`); a move gets
-the particle state as a :class:`MoveState` and its parameters as a
-:class:`MoveParams`.
+The public kernels take the mesh packed in one :class:`MeshArrays` tuple
+(and a move its state and parameters as :class:`MoveState` and
+:class:`MoveParams`); they unpack it and pass plain arrays to the private
+loops. Keep it so: members of a tuple unpacked inside a looping kernel, and
+arrays handed to inline helpers in a hot loop, are reference-counted in the
+loop (atomic operations; measured 3-5x slower moves); arguments are borrowed.
 
 Facet codes in ``nbr`` (cells, tdim+1): ``>= 0`` the neighbour cell (for a
 periodic facet: the cell holding the image point), ``WALL = -1``,
@@ -41,8 +44,6 @@ STAGE_DONE = 2
 
 TOL = 1e-10  # barycentric tolerance for "inside"
 EPS_IN = 1e-9  # barycentric offset used to push a point back inside a wall
-WALK_MAXIT = 1000  # facet crossings of one walk inside a move
-MIDPOINT_RETRIES = 12  # halvings of a sub-step whose midpoint left the local mesh
 
 MeshArrays = namedtuple(
     "MeshArrays", ["origin", "inv", "coords", "h", "dofs", "nbr", "pshift", "period", "n_owned"]
@@ -71,9 +72,6 @@ limits ``courant`` and ``gcourant`` (or ``nsub > 0`` fixed sub-steps), and
 ``has_q`` (a nodal source is integrated along the path)."""
 
 
-# ---------------------------------------------------------------- geometry and walk
-
-
 @njit(cache=True, error_model="numpy", inline="always")
 def _bary(x, c, origin, inv, lam):
     """Barycentric coordinates of ``x`` in cell ``c`` into ``lam``; returns min."""
@@ -94,14 +92,18 @@ def _bary(x, c, origin, inv, lam):
     return m
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _bary_tri(x0, x1, c, origin, inv):
-    """:func:`_bary` for a triangle in 2D: ``(lambda_0, lambda_1, lambda_2)``."""
-    d0 = x0 - origin[c, 0]
-    d1 = x1 - origin[c, 1]
-    l1 = inv[c, 0, 0] * d0 + inv[c, 0, 1] * d1
-    l2 = inv[c, 1, 0] * d0 + inv[c, 1, 1] * d1
-    return 1.0 - (l1 + l2), l1, l2
+@njit(cache=True, error_model="numpy")
+def _project_to_facet(x, c, i, lam_i, inv):
+    """Move ``x`` onto the plane ``lambda_i = EPS_IN`` of cell ``c`` (drops the overshoot)."""
+    tdim = inv.shape[1]
+    gdim = inv.shape[2]
+    g2 = 0.0
+    for j in range(gdim):
+        v = _facet_grad(inv, c, i, j, tdim)
+        g2 += v * v
+    f = (lam_i - EPS_IN) / g2
+    for j in range(gdim):
+        x[j] -= f * _facet_grad(inv, c, i, j, tdim)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -116,141 +118,61 @@ def _facet_grad(inv, c, i, j, tdim):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _facet_step(inv, c, i, lam_i):
-    """Facet projection: ``x -= f * grad(lambda_i)`` puts ``x`` on ``lambda_i = EPS_IN``.
-
-    Returns ``f`` (drops the overshoot ``lam_i < 0`` of a point beyond the facet).
-    """
-    tdim = inv.shape[1]
-    gdim = inv.shape[2]
-    g2 = 0.0
-    for j in range(gdim):
-        v = _facet_grad(inv, c, i, j, tdim)
-        g2 += v * v
-    return (lam_i - EPS_IN) / g2
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _project_to_facet(x, c, i, lam_i, inv):
-    """Move ``x`` onto the plane ``lambda_i = EPS_IN`` of cell ``c`` (see :func:`_facet_step`)."""
-    tdim = inv.shape[1]
-    gdim = inv.shape[2]
-    f = _facet_step(inv, c, i, lam_i)
-    for j in range(gdim):
-        x[j] -= f * _facet_grad(inv, c, i, j, tdim)
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _crossing(M, c, i):
-    """What leaving cell ``c`` through facet ``i`` means: ``(next, axis, shift)``.
-
-    ``next`` is the neighbour cell or a facet code; a periodic facet moves the
-    point by ``shift`` along ``axis`` (``axis = -1``: no shift).
-    """
-    nb = M.nbr[c, i]
-    ax = -1
-    d = 0.0
-    if nb != WALL:
-        ps = M.pshift[c, i]
-        if ps != 0:
-            ax = abs(ps) - 1
-            d = -M.period[ax] if ps > 0 else M.period[ax]
-    return nb, ax, d
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _crossing_status(nb):
-    """Walk status after leaving through a facet that leads to no local cell."""
-    return ST_OUTFLOW if nb == OUTFLOW else ST_REMOTE
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def walk(x, c, M, lam, shift, maxit):
+def walk(x, c, origin, inv, nbr, pshift, period, lam, shift, maxit):
     """Walk from cell ``c`` to the cell containing ``x`` (modified in place).
 
-    Leaves each cell through its most negative barycentric facet. Walls project
-    ``x`` back inside (slip), periodic facets wrap ``x`` (the applied
-    translation is added to ``shift``). Returns ``(cell, status)``; on success
-    ``lam`` holds the barycentric coordinates of ``x`` in ``cell``.
+    Walls project ``x`` back inside (slip), periodic facets wrap ``x`` (the
+    applied translation is added to ``shift``). Returns ``(cell, status)``;
+    on success ``lam`` holds the barycentric coordinates of ``x`` in ``cell``.
     """
-    tdim = M.inv.shape[1]
+    tdim = inv.shape[1]
     for _ in range(maxit):
-        bv = _bary(x, c, M.origin, M.inv, lam)
-        if bv >= -TOL:
+        m = _bary(x, c, origin, inv, lam)
+        if m >= -TOL:
             return c, ST_OK
+        # leave through the most negative facet; a wall there pushes x back inside
         best = 0
+        bv = lam[0]
         for i in range(1, tdim + 1):
-            if lam[i] < lam[best]:
+            if lam[i] < bv:
+                bv = lam[i]
                 best = i
-        nb, ax, d = _crossing(M, c, best)
-        if nb == WALL:
-            _project_to_facet(x, c, best, bv, M.inv)
-            continue
-        if ax >= 0:
-            x[ax] += d
-            shift[ax] += d
-        if nb >= 0:
-            c = nb
-            continue
-        return c, _crossing_status(nb)
+        wb = -1
+        if nbr[c, best] == WALL:
+            wb = best
+            best = -1
+        wv = bv
+        if best >= 0:
+            ps = pshift[c, best]
+            if ps != 0:
+                ax = abs(ps) - 1
+                d = -period[ax] if ps > 0 else period[ax]
+                x[ax] += d
+                shift[ax] += d
+            nb = nbr[c, best]
+            if nb >= 0:
+                c = nb
+                continue
+            if nb == OUTFLOW:
+                return c, ST_OUTFLOW
+            return c, ST_REMOTE
+        _project_to_facet(x, c, wb, wv, inv)
     return c, ST_FAIL
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _walk_tri(x0, x1, c, M, maxit):
-    """:func:`walk` for triangles in 2D on scalars (same operations in the same order).
-
-    Returns ``(x0, x1, cell, status, l0, l1, l2, shift0, shift1)``.
-    """
-    s0 = 0.0
-    s1 = 0.0
-    l0 = 0.0
-    l1 = 0.0
-    l2 = 0.0
-    for _ in range(maxit):
-        l0, l1, l2 = _bary_tri(x0, x1, c, M.origin, M.inv)
-        best = 0
-        bv = l0
-        if l1 < bv:
-            bv = l1
-            best = 1
-        if l2 < bv:
-            bv = l2
-            best = 2
-        if bv >= -TOL:
-            return x0, x1, c, ST_OK, l0, l1, l2, s0, s1
-        nb, ax, d = _crossing(M, c, best)
-        if nb == WALL:
-            f = _facet_step(M.inv, c, best, bv)
-            x0 -= f * _facet_grad(M.inv, c, best, 0, 2)
-            x1 -= f * _facet_grad(M.inv, c, best, 1, 2)
-            continue
-        if ax == 0:
-            x0 += d
-            s0 += d
-        elif ax == 1:
-            x1 += d
-            s1 += d
-        if nb >= 0:
-            c = nb
-            continue
-        return x0, x1, c, _crossing_status(nb), l0, l1, l2, s0, s1
-    return x0, x1, c, ST_FAIL, l0, l1, l2, s0, s1
-
-
-# ---------------------------------------------------------------- P1 evaluation
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _eval_vec(vals, dofs, c, lam, out):
-    """``out = sum_i lam_i vals[dofs[c, i]]`` for a ``(ndofs, k)`` array."""
+def _eval_vec(vals, dofs, c, lam, out, scale, add):
+    """``out (+)= scale * sum_i lam_i vals[dofs[c, i]]`` for a ``(ndofs, k)`` array."""
     k = vals.shape[1]
     nv = dofs.shape[1]
     for j in range(k):
         v = 0.0
         for i in range(nv):
             v += lam[i] * vals[dofs[c, i], j]
-        out[j] = v
+        if add:
+            out[j] += scale * v
+        else:
+            out[j] = scale * v
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -261,11 +183,6 @@ def _eval_scalar(vals, dofs, c, lam):
     return v
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _eval_tri(vals, j, d0, d1, d2, l0, l1, l2):
-    return l0 * vals[d0, j] + l1 * vals[d1, j] + l2 * vals[d2, j]
-
-
 @njit(cache=True, error_model="numpy")
 def _grad_norm(vals, dofs, c, inv):
     """Frobenius norm of the (cell-constant) gradient of a P1 vector field in cell ``c``."""
@@ -273,17 +190,6 @@ def _grad_norm(vals, dofs, c, inv):
     gdim = inv.shape[2]
     k = vals.shape[1]
     s = 0.0
-    if tdim == 2 and gdim == 2 and k == 2:  # triangles in 2D, unrolled (same operations)
-        d0 = dofs[c, 0]
-        d1 = dofs[c, 1]
-        d2 = dofs[c, 2]
-        for a in range(2):
-            for b in range(2):
-                g = -inv[c, 0, b] - inv[c, 1, b]
-                v = vals[d0, a] * g + vals[d1, a] * inv[c, 0, b]
-                v += vals[d2, a] * inv[c, 1, b]
-                s += v * v
-        return np.sqrt(s)
     for a in range(k):
         for b in range(gdim):
             g0 = 0.0
@@ -299,30 +205,15 @@ def _grad_norm(vals, dofs, c, inv):
 @njit(cache=True, error_model="numpy")
 def grad_norms(vals, cells, M):
     """:func:`_grad_norm` for many cells."""
-    out = np.empty(cells.shape[0])
-    for p in range(cells.shape[0]):
-        out[p] = _grad_norm(vals, M.dofs, cells[p], M.inv)
-    return out
+    return _grad_norms(vals, M.dofs, cells, M.inv)
 
 
 @njit(cache=True, error_model="numpy")
-def evaluate_p1(x, cells, vals, M):
-    """Values of a P1 field ``vals (ndofs, k)`` at the points ``x`` in ``cells``."""
-    n = x.shape[0]
-    k = vals.shape[1]
-    out = np.empty((n, k))
-    lam = np.empty(4)
-    tmp = np.empty(k)
-    for p in range(n):
-        c = cells[p]
-        _bary(x[p], c, M.origin, M.inv, lam)
-        _eval_vec(vals, M.dofs, c, lam, tmp)
-        for j in range(k):
-            out[p, j] = tmp[j]
+def _grad_norms(vals, dofs, cells, inv):
+    out = np.empty(cells.shape[0])
+    for p in range(cells.shape[0]):
+        out[p] = _grad_norm(vals, dofs, cells[p], inv)
     return out
-
-
-# ---------------------------------------------------------------- locate
 
 
 @njit(cache=True, error_model="numpy")
@@ -332,6 +223,11 @@ def locate_many(x, cells, M, maxit):
     ``x`` is modified in place (walls, periodic wrap). Status as in :func:`walk`,
     with ``ST_GHOST`` for points found in a ghost cell.
     """
+    return _locate_many(x, cells, M.origin, M.inv, M.nbr, M.pshift, M.period, M.n_owned, maxit)
+
+
+@njit(cache=True, error_model="numpy")
+def _locate_many(x, cells, origin, inv, nbr, pshift, period, n_owned, maxit):
     n = x.shape[0]
     gdim = x.shape[1]
     out = np.empty(n, dtype=np.int32)
@@ -344,8 +240,8 @@ def locate_many(x, cells, M, maxit):
         for j in range(gdim):
             xp[j] = x[p, j]
             sh[j] = 0.0
-        c, s = walk(xp, cells[p], M, lam, sh, maxit)
-        if s == ST_OK and c >= M.n_owned:
+        c, s = walk(xp, cells[p], origin, inv, nbr, pshift, period, lam, sh, maxit)
+        if s == ST_OK and c >= n_owned:
             s = ST_GHOST
         out[p] = c
         st[p] = s
@@ -358,6 +254,11 @@ def locate_many(x, cells, M, maxit):
 @njit(cache=True, error_model="numpy")
 def contains(x, cells, M, tol):
     """Whether each ``x[p]`` lies in ``cells[p]`` (barycentric tolerance ``tol``)."""
+    return _contains(x, cells, M.origin, M.inv, tol)
+
+
+@njit(cache=True, error_model="numpy")
+def _contains(x, cells, origin, inv, tol):
     n = x.shape[0]
     out = np.zeros(n, dtype=np.bool_)
     lam = np.empty(4)
@@ -365,20 +266,25 @@ def contains(x, cells, M, tol):
         c = cells[p]
         if c < 0:
             continue
-        out[p] = _bary(x[p], c, M.origin, M.inv, lam) >= -tol
+        out[p] = _bary(x[p], c, origin, inv, lam) >= -tol
     return out
 
 
 @njit(cache=True, error_model="numpy")
 def clamp_into(x, cells, M):
     """Move each ``x[p]`` to the closest point of ``cells[p]`` in barycentric terms."""
+    _clamp_into(x, cells, M.origin, M.inv, M.coords)
+
+
+@njit(cache=True, error_model="numpy")
+def _clamp_into(x, cells, origin, inv, coords):
     n = x.shape[0]
     gdim = x.shape[1]
     lam = np.empty(4)
-    nv = M.inv.shape[1] + 1
     for p in range(n):
         c = cells[p]
-        _bary(x[p], c, M.origin, M.inv, lam)
+        _bary(x[p], c, origin, inv, lam)
+        nv = inv.shape[1] + 1
         s = 0.0
         for i in range(nv):
             lam[i] = min(max(lam[i], EPS_IN), 1.0)
@@ -386,11 +292,9 @@ def clamp_into(x, cells, M):
         for j in range(gdim):
             v = 0.0
             for i in range(nv):
-                v += lam[i] / s * M.coords[c, i, j]
+                v += lam[i] / s * coords[c, i, j]
             x[p, j] = v
 
-
-# ---------------------------------------------------------------- move (X-IVAS)
 
 WITHIN_MARGIN = 1.0  # new particle, cell fit: may leave the samples' range by this x range
 FIT_MAX_EXTRAP = 6.0  # new particle: fits only up to this many Mahalanobis radii from the samples
@@ -445,7 +349,9 @@ def _newton_dir(r, c, un1, dofs, inv, a, out, m):
 
 
 @njit(cache=True, error_model="numpy")
-def theta_stage(xp, c, y, theta, dt, un1, M, lam, sh, it0, w):
+def theta_stage(
+    xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc, it0, w
+):
     """Solve eq. (2.10), ``x = y + theta*dt*V^{n+1}(x)``, starting at ``xp`` in ``c``.
 
     Newton iterations with the cell gradient of ``V^{n+1}``: exact in one
@@ -467,262 +373,68 @@ def theta_stage(xp, c, y, theta, dt, un1, M, lam, sh, it0, w):
     it = it0
     a = theta * dt
     while it < THETA_MAXIT:
-        _bary(xp, c, M.origin, M.inv, lam)
-        _eval_vec(un1, M.dofs, c, lam, v)
+        _bary(xp, c, origin, inv, lam)
+        _eval_vec(un1, dofs, c, lam, v, 1.0, False)
         for j in range(gdim):
             r[j] = y[j] + a * v[j] - xp[j]
-        exact = _newton_dir(r, c, un1, M.dofs, M.inv, a, dx, m)
+        exact = _newton_dir(r, c, un1, dofs, inv, a, dx, m)
         d2 = 0.0
         for j in range(gdim):
             d2 += dx[j] ** 2
             xp[j] += dx[j]
             sh[j] = 0.0
         it += 1
-        c2, s = walk(xp, c, M, lam, sh, WALK_MAXIT)
+        c2, s = walk(xp, c, origin, inv, nbr, pshift, period, lam, sh, 1000)
         for j in range(gdim):
             y[j] += sh[j]
         if s != ST_OK:
             return c2, s, it
         same = c2 == c
         c = c2
-        if (exact and same) or d2 <= (1e-12 * M.h[c]) ** 2:
+        if (exact and same) or d2 <= (1e-12 * hc[c]) ** 2:
             break
     return c, ST_OK, it
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _substep(tl, speed, c, un, S, M):
-    """Length of the next sub-step with ``tl`` of the step left.
-
-    ``S.nsub > 0``: equal sub-steps of at most ``dt/nsub``. Otherwise the
-    local Courant number ``speed*h_sub/h_cell`` is at most ``S.courant`` and
-    ``h_sub*|grad V|_cell`` at most ``S.gcourant`` (when positive); the rest
-    of the step is split into equal sub-steps that satisfy both.
-    """
-    if S.nsub > 0:
-        h = S.dt / S.nsub
-        m = np.ceil(tl / h - 1e-9)
-    else:
-        rate = speed / (S.courant * M.h[c])
-        if S.gcourant > 0.0:
-            gr = _grad_norm(un, M.dofs, c, M.inv) / S.gcourant
-            if gr > rate:
-                rate = gr
-        m = np.ceil(tl * rate)
-    if m < 1.0:
-        m = 1.0
-    return tl / m
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _midpoint_stop(s, c, n_owned):
-    """Whether a failed midpoint walk (status ``s`` from cell ``c``) ends the retries.
-
-    Outflow and walk failures do; so does a remote midpoint seen from a ghost
-    cell (the owner continues the particle). Otherwise the sub-step is halved.
-    """
-    return s == ST_OUTFLOW or s == ST_FAIL or c >= n_owned
-
-
 @njit(cache=True, error_model="numpy")
-def _path_any(xp, c, tl, a, aux, p, un, q, S, M, lam, lam2, xm, xn, v1, v2, sh):
-    """Stage 0 of one particle, any dimension: Heun sub-steps from ``xp`` in ``c``.
-
-    Updates ``xp`` and ``aux[p]`` (displacement) in place; returns
-    ``(cell, status, t_left, acc, substeps)``.
-    """
-    gdim = M.inv.shape[2]
-    n_owned = M.n_owned
-    dofs = M.dofs
-    st = ST_OK
-    nsteps = 0
-    # lam holds the barycentrics of xp in c (the last walk leaves them there)
-    _bary(xp, c, M.origin, M.inv, lam)
-    while tl > 1e-14 * S.dt:
-        _eval_vec(un, dofs, c, lam, v1)
-        sp = 0.0
-        for j in range(gdim):
-            sp += v1[j] * v1[j]
-        h = _substep(tl, np.sqrt(sp), c, un, S, M)
-        # midpoint (predictor) with retries when it leaves the local mesh
-        ok = False
-        s = ST_OK
-        cm = c
-        for _r in range(MIDPOINT_RETRIES):
-            for j in range(gdim):
-                xm[j] = xp[j] + h * v1[j]
-                sh[j] = 0.0
-            cm, s = walk(xm, c, M, lam2, sh, WALK_MAXIT)
-            if s == ST_OK:
-                ok = True
-                break
-            if _midpoint_stop(s, c, n_owned):
-                break
-            h *= 0.5
-        if not ok:
-            if s == ST_REMOTE and c >= n_owned:
-                st = ST_GHOST
-                break
-            # outflow / fail / remote from an owned cell: explicit Euler step
-            for j in range(gdim):
-                xn[j] = xp[j] + h * v1[j]
-            q0 = _eval_scalar(q, dofs, c, lam) if S.has_q else 0.0
-            for j in range(gdim):
-                sh[j] = 0.0
-            cn, s = walk(xn, c, M, lam2, sh, WALK_MAXIT)
-            if S.has_q:
-                a += h * q0
-            for j in range(gdim):
-                aux[p, j] += xn[j] - sh[j] - xp[j]
-                xp[j] = xn[j]
-            tl -= h
-            nsteps += 1
-            c = cn
-            lam, lam2 = lam2, lam
-            st = s if s != ST_OK else (ST_GHOST if c >= n_owned else ST_OK)
-            if st == ST_OK:
-                continue
-            break
-        _eval_vec(un, dofs, cm, lam2, v2)
-        for j in range(gdim):
-            xn[j] = xp[j] + 0.5 * h * (v1[j] + v2[j])
-            sh[j] = 0.0
-        q0 = _eval_scalar(q, dofs, c, lam) if S.has_q else 0.0
-        cn, s = walk(xn, c, M, lam2, sh, WALK_MAXIT)
-        if S.has_q and s == ST_OK:
-            a += 0.5 * h * (q0 + _eval_scalar(q, dofs, cn, lam2))
-        elif S.has_q:
-            a += h * q0
-        for j in range(gdim):
-            aux[p, j] += xn[j] - sh[j] - xp[j]
-            xp[j] = xn[j]
-        tl -= h
-        nsteps += 1
-        c = cn
-        lam, lam2 = lam2, lam
-        if s != ST_OK:
-            st = s
-            break
-    return c, st, tl, a, nsteps
-
-
-@njit(cache=True, error_model="numpy")
-def _path_tri(xp, c, tl, a, aux, p, un, q, S, M):
-    """:func:`_path_any` for triangles in 2D (scalar registers, no work arrays).
-
-    Performs the same floating-point operations in the same order, so both
-    give identical results. The barycentrics of each sub-step's end point
-    start the next sub-step.
-    """
-    n_owned = M.n_owned
-    dofs = M.dofs
-    st = ST_OK
-    nsteps = 0
-    p0 = xp[0]
-    p1 = xp[1]
-    a0 = aux[p, 0]
-    a1 = aux[p, 1]
-    l0, l1, l2 = _bary_tri(p0, p1, c, M.origin, M.inv)
-    while tl > 1e-14 * S.dt:
-        d0 = dofs[c, 0]
-        d1 = dofs[c, 1]
-        d2 = dofs[c, 2]
-        v0 = _eval_tri(un, 0, d0, d1, d2, l0, l1, l2)
-        v1 = _eval_tri(un, 1, d0, d1, d2, l0, l1, l2)
-        h = _substep(tl, np.sqrt(v0 * v0 + v1 * v1), c, un, S, M)
-        # midpoint (predictor) with retries when it leaves the local mesh
-        ok = False
-        s = ST_OK
-        cm = c
-        m0 = 0.0
-        m1 = 0.0
-        m2 = 0.0
-        for _r in range(MIDPOINT_RETRIES):
-            _x0, _x1, cm, s, m0, m1, m2, _s0, _s1 = _walk_tri(
-                p0 + h * v0, p1 + h * v1, c, M, WALK_MAXIT
-            )
-            if s == ST_OK:
-                ok = True
-                break
-            if _midpoint_stop(s, c, n_owned):
-                break
-            h *= 0.5
-        if not ok:
-            if s == ST_REMOTE and c >= n_owned:
-                st = ST_GHOST
-                break
-            # outflow / fail / remote from an owned cell: explicit Euler step
-            q0 = l0 * q[d0] + l1 * q[d1] + l2 * q[d2] if S.has_q else 0.0
-            n0, n1, cn, s, l0, l1, l2, s0, s1 = _walk_tri(
-                p0 + h * v0, p1 + h * v1, c, M, WALK_MAXIT
-            )
-            if S.has_q:
-                a += h * q0
-            a0 += n0 - s0 - p0
-            a1 += n1 - s1 - p1
-            p0 = n0
-            p1 = n1
-            tl -= h
-            nsteps += 1
-            c = cn
-            st = s if s != ST_OK else (ST_GHOST if c >= n_owned else ST_OK)
-            if st == ST_OK:
-                continue
-            break
-        e0 = dofs[cm, 0]
-        e1 = dofs[cm, 1]
-        e2 = dofs[cm, 2]
-        w0 = _eval_tri(un, 0, e0, e1, e2, m0, m1, m2)
-        w1 = _eval_tri(un, 1, e0, e1, e2, m0, m1, m2)
-        q0 = l0 * q[d0] + l1 * q[d1] + l2 * q[d2] if S.has_q else 0.0
-        n0, n1, cn, s, l0, l1, l2, s0, s1 = _walk_tri(
-            p0 + 0.5 * h * (v0 + w0), p1 + 0.5 * h * (v1 + w1), c, M, WALK_MAXIT
-        )
-        if S.has_q and s == ST_OK:
-            q1 = l0 * q[dofs[cn, 0]] + l1 * q[dofs[cn, 1]] + l2 * q[dofs[cn, 2]]
-            a += 0.5 * h * (q0 + q1)
-        elif S.has_q:
-            a += h * q0
-        a0 += n0 - s0 - p0
-        a1 += n1 - s1 - p1
-        p0 = n0
-        p1 = n1
-        tl -= h
-        nsteps += 1
-        c = cn
-        if s != ST_OK:
-            st = s
-            break
-    xp[0] = p0
-    xp[1] = p1
-    aux[p, 0] = a0
-    aux[p, 1] = a1
-    return c, st, tl, a, nsteps
-
-
-@njit(cache=True, error_model="numpy")
-def advect_p1(P, un, un1, q, S, M):
+def _advect_p1_any(
+    x,
+    cell,
+    t_left,
+    aux,
+    acc,
+    stage,
+    status,
+    dt,
+    un,
+    un1,
+    theta,
+    q,
+    has_q,
+    courant,
+    gcourant,
+    nsub,
+    origin,
+    inv,
+    nbr,
+    pshift,
+    period,
+    hc,
+    dofs,
+    n_owned,
+):
     """Fused X-IVAS move + locate of every unfinished particle (P1 velocity).
 
-    ``P`` is a :class:`MoveState`, ``S`` a :class:`MoveParams`, ``M`` the
-    :class:`MeshArrays`. Heun (RK2) sub-steps along the streamline of ``un``
-    (``(ndofs, gdim)``), sized by :func:`_substep`; then, when ``theta > 0``,
-    the fixed point of eq. (2.10) with ``un1`` (:func:`theta_stage`). Along
-    the path ``acc += int q dt`` (trapezoid per sub-step) when ``has_q``.
-    Returns the number of sub-steps taken.
-
-    Triangles in 2D take a specialised path (:func:`_path_tri`, scalar
-    registers instead of small work arrays); it performs the same
-    floating-point operations in the same order as :func:`_path_any`, so
-    both give identical results.
+    Heun (RK2) sub-steps along the streamline of ``un`` (``(ndofs, gdim)``),
+    each of local Courant number ``courant`` and at most ``gcourant``
+    times the inverse velocity-gradient norm of the cell (or ``dt/nsub``
+    when ``nsub > 0``); then, when ``theta > 0``, the fixed point of eq. (2.10)
+    with ``un1``. Along the path ``acc += int q dt`` (trapezoid per sub-step)
+    when ``has_q``. ``aux`` holds the accumulated displacement (stage 0) or
+    the anchor ``y`` (stage 1). Returns the number of sub-steps taken.
     """
-    x = P.x
-    aux = P.aux
-    stage = P.stage
     n = x.shape[0]
     gdim = x.shape[1]
-    tri = gdim == 2 and M.inv.shape[1] == 2
-    theta = S.theta
     lam = np.empty(4)
     lam2 = np.empty(4)
     xp = np.empty(3)
@@ -737,20 +449,96 @@ def advect_p1(P, un, un1, q, S, M):
     for p in range(n):
         if stage[p] == STAGE_DONE:
             continue
-        c = P.cell[p]
+        c = cell[p]
         for j in range(gdim):
             xp[j] = x[p, j]
         st = ST_OK
-        tl = P.t_left[p]
-        a = P.acc[p]
+        tl = t_left[p]
+        a = acc[p]
         if stage[p] == STAGE_PATH:
-            if tri:
-                c, st, tl, a, k = _path_tri(xp, c, tl, a, aux, p, un, q, S, M)
-            else:
-                c, st, tl, a, k = _path_any(
-                    xp, c, tl, a, aux, p, un, q, S, M, lam, lam2, xm, xn, v1, v2, sh
-                )
-            nsteps += k
+            # lam holds the barycentrics of xp in c (the last walk leaves them there)
+            _bary(xp, c, origin, inv, lam)
+            while tl > 1e-14 * dt:
+                _eval_vec(un, dofs, c, lam, v1, 1.0, False)
+                if nsub > 0:
+                    h = dt / nsub
+                    m = np.ceil(tl / h - 1e-9)
+                    if m < 1.0:
+                        m = 1.0
+                    h = tl / m
+                else:
+                    sp = 0.0
+                    for j in range(gdim):
+                        sp += v1[j] * v1[j]
+                    sp = np.sqrt(sp)
+                    rate = sp / (courant * hc[c])
+                    if gcourant > 0.0:
+                        gr = _grad_norm(un, dofs, c, inv) / gcourant
+                        if gr > rate:
+                            rate = gr
+                    m = np.ceil(tl * rate)
+                    if m < 1.0:
+                        m = 1.0
+                    h = tl / m
+                # midpoint (predictor) with retries when it leaves the local mesh
+                ok = False
+                for _r in range(12):
+                    for j in range(gdim):
+                        xm[j] = xp[j] + h * v1[j]
+                        sh[j] = 0.0
+                    cm, s = walk(xm, c, origin, inv, nbr, pshift, period, lam2, sh, 1000)
+                    if s == ST_OK:
+                        ok = True
+                        break
+                    if s == ST_OUTFLOW or s == ST_FAIL:
+                        break
+                    if c >= n_owned:  # REMOTE from a ghost cell: let the owner continue
+                        break
+                    h *= 0.5
+                if not ok:
+                    if s == ST_REMOTE and c >= n_owned:
+                        st = ST_GHOST
+                        break
+                    # outflow / fail / remote from an owned cell: explicit Euler step
+                    for j in range(gdim):
+                        xn[j] = xp[j] + h * v1[j]
+                    q0 = _eval_scalar(q, dofs, c, lam) if has_q else 0.0
+                    for j in range(gdim):
+                        sh[j] = 0.0
+                    cn, s = walk(xn, c, origin, inv, nbr, pshift, period, lam2, sh, 1000)
+                    if has_q:
+                        a += h * q0
+                    for j in range(gdim):
+                        aux[p, j] += xn[j] - sh[j] - xp[j]
+                        xp[j] = xn[j]
+                    tl -= h
+                    nsteps += 1
+                    c = cn
+                    lam, lam2 = lam2, lam
+                    st = s if s != ST_OK else (ST_GHOST if c >= n_owned else ST_OK)
+                    if st == ST_OK:
+                        continue
+                    break
+                _eval_vec(un, dofs, cm, lam2, v2, 1.0, False)
+                for j in range(gdim):
+                    xn[j] = xp[j] + 0.5 * h * (v1[j] + v2[j])
+                    sh[j] = 0.0
+                q0 = _eval_scalar(q, dofs, c, lam) if has_q else 0.0
+                cn, s = walk(xn, c, origin, inv, nbr, pshift, period, lam2, sh, 1000)
+                if has_q and s == ST_OK:
+                    a += 0.5 * h * (q0 + _eval_scalar(q, dofs, cn, lam2))
+                elif has_q:
+                    a += h * q0
+                for j in range(gdim):
+                    aux[p, j] += xn[j] - sh[j] - xp[j]
+                    xp[j] = xn[j]
+                tl -= h
+                nsteps += 1
+                c = cn
+                lam, lam2 = lam2, lam
+                if s != ST_OK:
+                    st = s
+                    break
             if st == ST_OK:
                 tl = 0.0
                 if theta > 0.0:
@@ -762,21 +550,336 @@ def advect_p1(P, un, un1, q, S, M):
         if st == ST_OK and stage[p] == STAGE_THETA:
             for j in range(gdim):
                 y[j] = aux[p, j]
-            c, st, its = theta_stage(xp, c, y, theta, S.dt, un1, M, lam, sh, int(tl), wth)
+            its0 = int(tl)
+            c, st, its = theta_stage(
+                xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc,
+                its0, wth,
+            )  # fmt: skip
             tl = float(its)  # in stage 1, t_left counts Newton iterations
             for j in range(gdim):
                 aux[p, j] = y[j]
             if st == ST_OK:
                 stage[p] = STAGE_DONE
-        if st == ST_OK and c >= M.n_owned:
+        if st == ST_OK and c >= n_owned:
             st = ST_GHOST
         for j in range(gdim):
             x[p, j] = xp[j]
-        P.cell[p] = c
-        P.t_left[p] = tl
-        P.acc[p] = a
-        P.status[p] = st
+        cell[p] = c
+        t_left[p] = tl
+        acc[p] = a
+        status[p] = st
     return nsteps
+
+
+@njit(cache=True, error_model="numpy")
+def advect_p1(P, un, un1, q, S, M):
+    """Fused X-IVAS move + locate of every unfinished particle (P1 velocity).
+
+    Heun (RK2) sub-steps along the streamline of ``un`` (``(ndofs, gdim)``),
+    each of local Courant number ``courant`` and at most ``gcourant``
+    times the inverse velocity-gradient norm of the cell (or ``dt/nsub``
+    when ``nsub > 0``); then, when ``theta > 0``, the fixed point of eq. (2.10)
+    with ``un1``. Along the path ``acc += int q dt`` (trapezoid per sub-step)
+    when ``has_q``. ``aux`` holds the accumulated displacement (stage 0) or
+    the anchor ``y`` (stage 1). Returns the number of sub-steps taken.
+
+    ``P`` is a :class:`MoveState` (updated in place), ``S`` a
+    :class:`MoveParams`, ``M`` the :class:`MeshArrays`. Triangles in 2D take
+    a specialised path (scalar registers instead of small work arrays); it
+    performs the same floating-point operations in the same order, so both
+    paths give identical results.
+    """
+    x, cell, t_left, aux, acc, stage, status = P
+    dt, theta, courant, gcourant, nsub, has_q = S
+    origin, inv, _, hc, dofs, nbr, pshift, period, n_owned = M
+    if x.shape[1] == 2 and inv.shape[1] == 2:
+        return _advect_p1_tri(
+            x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
+            gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned,
+        )  # fmt: skip
+    return _advect_p1_any(
+        x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
+        gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned,
+    )  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _bary_tri(x0, x1, c, origin, inv):
+    """:func:`_bary` for a triangle in 2D: ``(lambda_0, lambda_1, lambda_2)``."""
+    d0 = x0 - origin[c, 0]
+    d1 = x1 - origin[c, 1]
+    l1 = inv[c, 0, 0] * d0 + inv[c, 0, 1] * d1
+    l2 = inv[c, 1, 0] * d0 + inv[c, 1, 1] * d1
+    return 1.0 - (l1 + l2), l1, l2
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _walk_tri(x0, x1, c, origin, inv, nbr, pshift, period, maxit):
+    """:func:`walk` for triangles in 2D on scalars.
+
+    Returns ``(x0, x1, cell, status, l0, l1, l2, shift0, shift1)``.
+    """
+    s0 = 0.0
+    s1 = 0.0
+    l0 = 0.0
+    l1 = 0.0
+    l2 = 0.0
+    for _ in range(maxit):
+        l0, l1, l2 = _bary_tri(x0, x1, c, origin, inv)
+        best = 0
+        bv = l0
+        if l1 < bv:
+            bv = l1
+            best = 1
+        if l2 < bv:
+            bv = l2
+            best = 2
+        if bv >= -TOL:
+            return x0, x1, c, ST_OK, l0, l1, l2, s0, s1
+        nb = nbr[c, best]
+        if nb == WALL:
+            if best == 0:
+                g0 = -inv[c, 0, 0] - inv[c, 1, 0]
+                g1 = -inv[c, 0, 1] - inv[c, 1, 1]
+            else:
+                g0 = inv[c, best - 1, 0]
+                g1 = inv[c, best - 1, 1]
+            f = (bv - EPS_IN) / (g0 * g0 + g1 * g1)
+            x0 -= f * g0
+            x1 -= f * g1
+            continue
+        ps = pshift[c, best]
+        if ps != 0:
+            ax = abs(ps) - 1
+            d = -period[ax] if ps > 0 else period[ax]
+            if ax == 0:
+                x0 += d
+                s0 += d
+            else:
+                x1 += d
+                s1 += d
+        if nb >= 0:
+            c = nb
+            continue
+        if nb == OUTFLOW:
+            return x0, x1, c, ST_OUTFLOW, l0, l1, l2, s0, s1
+        return x0, x1, c, ST_REMOTE, l0, l1, l2, s0, s1
+    return x0, x1, c, ST_FAIL, l0, l1, l2, s0, s1
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _eval_tri(vals, j, d0, d1, d2, l0, l1, l2):
+    return l0 * vals[d0, j] + l1 * vals[d1, j] + l2 * vals[d2, j]
+
+
+@njit(cache=True, error_model="numpy")
+def _advect_p1_tri(
+    x,
+    cell,
+    t_left,
+    aux,
+    acc,
+    stage,
+    status,
+    dt,
+    un,
+    un1,
+    theta,
+    q,
+    has_q,
+    courant,
+    gcourant,
+    nsub,
+    origin,
+    inv,
+    nbr,
+    pshift,
+    period,
+    hc,
+    dofs,
+    n_owned,
+):
+    """:func:`advect_p1` for triangles in 2D (scalars, no work arrays in the sub-steps)."""
+    n = x.shape[0]
+    xp = np.empty(3)
+    lam = np.empty(4)
+    sh = np.zeros(3)
+    y = np.empty(3)
+    wth = np.empty((6, 3))
+    nsteps = 0
+    for p in range(n):
+        if stage[p] == STAGE_DONE:
+            continue
+        c = cell[p]
+        p0 = x[p, 0]
+        p1 = x[p, 1]
+        st = ST_OK
+        tl = t_left[p]
+        a = acc[p]
+        if stage[p] == STAGE_PATH:
+            a0 = aux[p, 0]
+            a1 = aux[p, 1]
+            l0, l1, l2 = _bary_tri(p0, p1, c, origin, inv)
+            while tl > 1e-14 * dt:
+                d0 = dofs[c, 0]
+                d1 = dofs[c, 1]
+                d2 = dofs[c, 2]
+                v0 = _eval_tri(un, 0, d0, d1, d2, l0, l1, l2)
+                v1 = _eval_tri(un, 1, d0, d1, d2, l0, l1, l2)
+                if nsub > 0:
+                    h = dt / nsub
+                    m = np.ceil(tl / h - 1e-9)
+                    if m < 1.0:
+                        m = 1.0
+                    h = tl / m
+                else:
+                    rate = np.sqrt(v0 * v0 + v1 * v1) / (courant * hc[c])
+                    if gcourant > 0.0:
+                        gs = 0.0
+                        for k in range(2):
+                            for b in range(2):
+                                g = -inv[c, 0, b] - inv[c, 1, b]
+                                gv = un[d0, k] * g + un[d1, k] * inv[c, 0, b]
+                                gv += un[d2, k] * inv[c, 1, b]
+                                gs += gv * gv
+                        gr = np.sqrt(gs) / gcourant
+                        if gr > rate:
+                            rate = gr
+                    m = np.ceil(tl * rate)
+                    if m < 1.0:
+                        m = 1.0
+                    h = tl / m
+                # midpoint (predictor) with retries when it leaves the local mesh
+                ok = False
+                s = ST_OK
+                cm = c
+                m0 = 0.0
+                m1 = 0.0
+                m2 = 0.0
+                for _r in range(12):
+                    _x0, _x1, cm, s, m0, m1, m2, _s0, _s1 = _walk_tri(
+                        p0 + h * v0, p1 + h * v1, c, origin, inv, nbr, pshift, period, 1000
+                    )
+                    if s == ST_OK:
+                        ok = True
+                        break
+                    if s == ST_OUTFLOW or s == ST_FAIL:
+                        break
+                    if c >= n_owned:  # REMOTE from a ghost cell: let the owner continue
+                        break
+                    h *= 0.5
+                if not ok:
+                    if s == ST_REMOTE and c >= n_owned:
+                        st = ST_GHOST
+                        break
+                    # outflow / fail / remote from an owned cell: explicit Euler step
+                    q0 = l0 * q[d0] + l1 * q[d1] + l2 * q[d2] if has_q else 0.0
+                    n0, n1, cn, s, l0, l1, l2, s0, s1 = _walk_tri(
+                        p0 + h * v0, p1 + h * v1, c, origin, inv, nbr, pshift, period, 1000
+                    )
+                    if has_q:
+                        a += h * q0
+                    a0 += n0 - s0 - p0
+                    a1 += n1 - s1 - p1
+                    p0 = n0
+                    p1 = n1
+                    tl -= h
+                    nsteps += 1
+                    c = cn
+                    st = s if s != ST_OK else (ST_GHOST if c >= n_owned else ST_OK)
+                    if st == ST_OK:
+                        continue
+                    break
+                e0 = dofs[cm, 0]
+                e1 = dofs[cm, 1]
+                e2 = dofs[cm, 2]
+                w0 = _eval_tri(un, 0, e0, e1, e2, m0, m1, m2)
+                w1 = _eval_tri(un, 1, e0, e1, e2, m0, m1, m2)
+                q0 = l0 * q[d0] + l1 * q[d1] + l2 * q[d2] if has_q else 0.0
+                n0, n1, cn, s, l0, l1, l2, s0, s1 = _walk_tri(
+                    p0 + 0.5 * h * (v0 + w0),
+                    p1 + 0.5 * h * (v1 + w1),
+                    c,
+                    origin,
+                    inv,
+                    nbr,
+                    pshift,
+                    period,
+                    1000,
+                )
+                if has_q and s == ST_OK:
+                    q1 = l0 * q[dofs[cn, 0]] + l1 * q[dofs[cn, 1]] + l2 * q[dofs[cn, 2]]
+                    a += 0.5 * h * (q0 + q1)
+                elif has_q:
+                    a += h * q0
+                a0 += n0 - s0 - p0
+                a1 += n1 - s1 - p1
+                p0 = n0
+                p1 = n1
+                tl -= h
+                nsteps += 1
+                c = cn
+                if s != ST_OK:
+                    st = s
+                    break
+            aux[p, 0] = a0
+            aux[p, 1] = a1
+            if st == ST_OK:
+                tl = 0.0
+                if theta > 0.0:
+                    stage[p] = STAGE_THETA
+                    aux[p, 0] = p0 - theta * aux[p, 0]
+                    aux[p, 1] = p1 - theta * aux[p, 1]
+                else:
+                    stage[p] = STAGE_DONE
+        if st == ST_OK and stage[p] == STAGE_THETA:
+            xp[0] = p0
+            xp[1] = p1
+            y[0] = aux[p, 0]
+            y[1] = aux[p, 1]
+            its0 = int(tl)
+            c, st, its = theta_stage(
+                xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc,
+                its0, wth,
+            )  # fmt: skip
+            tl = float(its)  # in stage 1, t_left counts Newton iterations
+            aux[p, 0] = y[0]
+            aux[p, 1] = y[1]
+            p0 = xp[0]
+            p1 = xp[1]
+            if st == ST_OK:
+                stage[p] = STAGE_DONE
+        if st == ST_OK and c >= n_owned:
+            st = ST_GHOST
+        x[p, 0] = p0
+        x[p, 1] = p1
+        cell[p] = c
+        t_left[p] = tl
+        acc[p] = a
+        status[p] = st
+    return nsteps
+
+
+@njit(cache=True, error_model="numpy")
+def evaluate_p1(x, cells, vals, M):
+    """Values of a P1 field ``vals (ndofs, k)`` at the points ``x`` in ``cells``."""
+    return _evaluate_p1(x, cells, vals, M.origin, M.inv, M.dofs)
+
+
+@njit(cache=True, error_model="numpy")
+def _evaluate_p1(x, cells, vals, origin, inv, dofs):
+    n = x.shape[0]
+    k = vals.shape[1]
+    out = np.empty((n, k))
+    lam = np.empty(4)
+    tmp = np.empty(k)
+    for p in range(n):
+        c = cells[p]
+        _bary(x[p], c, origin, inv, lam)
+        _eval_vec(vals, dofs, c, lam, tmp, 1.0, False)
+        for j in range(k):
+            out[p, j] = tmp[j]
+    return out
 
 
 @njit(cache=True, error_model="numpy")
@@ -787,7 +890,11 @@ def project_accumulate(x, cells, vals, M, acc, linear):
     ``[W, count, W*h, W*dx (g), W*dx⊗dx (g(g+1)/2), W*T (k), W*T*dx (k*g)]``
     with ``W = N_i(x_p)`` and ``dx = x_p - x_i``.
     """
-    origin, inv, coords, hc, dofs = M.origin, M.inv, M.coords, M.h, M.dofs
+    _project_accumulate(x, cells, vals, M.origin, M.inv, M.dofs, M.coords, M.h, acc, linear)
+
+
+@njit(cache=True, error_model="numpy")
+def _project_accumulate(x, cells, vals, origin, inv, dofs, coords, hc, acc, linear):
     if x.shape[1] == 2 and dofs.shape[1] == 3:
         _project_accumulate_tri(x, cells, vals, origin, inv, dofs, coords, hc, acc, linear)
         return
