@@ -9,6 +9,7 @@ imports DOLFINx names through these functions only.
 from __future__ import annotations
 
 import importlib.util
+from collections.abc import Callable
 from typing import Any
 
 # The PyPI wheel must be bootstrapped before dolfinx is imported.
@@ -34,7 +35,7 @@ __all__ = [
     "assemble_matrix",
     "assemble_vector",
     "bb_tree",
-    "block_partitioner",
+    "cell_partitioner",
     "colliding_cells",
     "create_mesh",
     "create_interval",
@@ -69,110 +70,62 @@ def _diagonal(name: str) -> Any:
         raise ValueError(f"unknown diagonal {name!r}") from exc
 
 
-def _owner_blocks(g: np.ndarray, nparts: int, total: int) -> np.ndarray:
-    """Rank of input cells ``g``: contiguous blocks of the input numbering."""
-    return (g * nparts // max(total, 1)).astype(np.int32)
+Destinations = Callable[
+    [MPI.Comm, int, int, np.ndarray, np.ndarray, bool], tuple[np.ndarray, np.ndarray | None]
+]
+"""``dest(comm, nparts, n, links, offsets, ghosting) -> (data, offsets)``: a cell partition.
+
+Gets this rank's ``n`` input cells with their dual graph (``links`` and
+``offsets`` of the neighbours' global input indices); returns the
+destination rank of each cell (``offsets = None``) or, with ``ghosting``,
+an adjacency list whose row ``i`` lists cell ``i``'s owner first, then the
+ranks holding a ghost copy of it.
+"""
 
 
-class _GridOwner:
-    """Rank of input cells of a built-in rectangle: a ``px x py`` grid of sub-rectangles.
-
-    DOLFINx numbers a rectangle's cells square by square, row by row (``per_square``
-    triangles each), on every version supported here.
-    """
-
-    def __init__(self, nx: int, ny: int, per_square: int, px: int, py: int):
-        self.nx, self.ny, self.per, self.px, self.py = nx, ny, per_square, px, py
-
-    def __call__(self, g: np.ndarray, nparts: int, total: int) -> np.ndarray:
-        s = g // self.per
-        i, j = s % self.nx, s // self.nx
-        return (i * self.px // self.nx + self.px * (j * self.py // self.ny)).astype(np.int32)
-
-
-def _partition_with(owner: Any) -> Any:
-    """A DOLFINx graph partitioner that places input cell ``g`` on ``owner(g, nparts, total)``.
-
-    Deterministic (DOLFINx 0.5's SCOTCH partition changes from run to run, so a
-    resumed or repeated MPI run continued on another partition). With
-    ``ghosting`` each cell also lists the ranks of its facet neighbours (its
-    ghost copies).
-    """
+def cell_partitioner(dest: Destinations) -> Any:
+    """A DOLFINx cell partitioner (shared-facet ghosts) that places cells by ``dest``."""
 
     def part(comm: MPI.Comm, nparts: int, graph: Any, ghosting: bool) -> Any:
         import dolfinx.cpp.graph as cgraph  # noqa: PLC0415
 
         n = int(graph.num_nodes)
-        offset = int(comm.exscan(n) or 0)
-        total = int(comm.allreduce(n))
-        own = owner(offset + np.arange(n, dtype=np.int64), nparts, total)
-        if not ghosting:
-            return cgraph.AdjacencyList_int32(own)
-        links = np.asarray(graph.array, dtype=np.int64)
-        offs = np.asarray(graph.offsets, dtype=np.int64)
-        nbr = owner(links, nparts, total)
-        node = np.repeat(np.arange(n, dtype=np.int64), np.diff(offs))
-        ext = nbr != own[node]
-        pairs = np.unique(np.stack([node[ext], nbr[ext].astype(np.int64)], axis=1), axis=0)
-        pairs = pairs.reshape(-1, 2)
-        count = np.bincount(pairs[:, 0], minlength=n) + 1
-        o = np.concatenate([[0], np.cumsum(count)]).astype(np.int32)
-        data = np.empty(int(o[-1]), dtype=np.int32)
-        data[o[:-1]] = own
-        k = np.arange(len(pairs)) - np.searchsorted(pairs[:, 0], pairs[:, 0])
-        data[o[pairs[:, 0]] + 1 + k] = pairs[:, 1]
-        return cgraph.AdjacencyList_int32(data, o)
+        data, offs = dest(comm, nparts, n, graph.array, graph.offsets, ghosting)
+        if offs is None:
+            return cgraph.AdjacencyList_int32(data)
+        return cgraph.AdjacencyList_int32(data, offs)
 
-    return part
-
-
-def block_partitioner(owner: Any = None) -> Any:
-    """Deterministic cell partitioner of the built-in meshes, with facet ghosts.
-
-    ``owner(g, nparts, total) -> ranks`` of input cells ``g``; default
-    contiguous blocks of the input numbering (for the built-in meshes,
-    numbered row by row, strips of rows: one cut of ``nx`` facets between
-    neighbouring ranks).
-    """
-    part = _partition_with(owner or _owner_blocks)
     mode = dolfinx.mesh.GhostMode.shared_facet
     if NEW_API:
         return dolfinx.mesh.create_cell_partitioner(part, mode, 2)
     return dolfinx.mesh.create_cell_partitioner(part)
 
 
-def create_interval(comm: MPI.Comm, bounds: tuple[float, float], n: int) -> dolfinx.mesh.Mesh:
+def create_interval(
+    comm: MPI.Comm, bounds: tuple[float, float], n: int, partitioner: Any
+) -> dolfinx.mesh.Mesh:
     """Create a uniform interval mesh of ``n`` cells on ``bounds``."""
     return dolfinx.mesh.create_interval(
-        comm, int(n), [float(bounds[0]), float(bounds[1])], partitioner=block_partitioner()
+        comm, int(n), [float(bounds[0]), float(bounds[1])], partitioner=partitioner
     )
 
 
 def create_rectangle(
-    comm: MPI.Comm, bounds: Any, n: Any, diagonal: str = "right", grid: Any = None
+    comm: MPI.Comm, bounds: Any, n: Any, diagonal: str, partitioner: Any
 ) -> dolfinx.mesh.Mesh:
-    """Create a triangle mesh of a rectangle, ``n = [nx, ny]`` cells, split by ``diagonal``.
-
-    ``grid = [px, py]`` (``px * py`` = ranks) partitions it into that grid of
-    sub-rectangles; default strips of rows (:func:`block_partitioner`).
-    """
+    """Create a triangle mesh of a rectangle, ``n = [nx, ny]`` cells, split by ``diagonal``."""
     pts = [np.asarray(bounds[0], dtype=float)[:2], np.asarray(bounds[1], dtype=float)[:2]]
-    nx, ny = int(n[0]), int(n[1])
-    owner = None
-    if grid is not None:
-        per = 4 if diagonal == "crossed" else 2
-        owner = _GridOwner(nx, ny, per, int(grid[0]), int(grid[1]))
     return dolfinx.mesh.create_rectangle(
         comm,
         pts,
-        [nx, ny],
+        [int(n[0]), int(n[1])],
         cell_type=dolfinx.mesh.CellType.triangle,
         diagonal=_diagonal(diagonal),
-        partitioner=block_partitioner(owner),
+        partitioner=partitioner,
     )
 
 
-def create_box(comm: MPI.Comm, bounds: Any, n: Any) -> dolfinx.mesh.Mesh:
+def create_box(comm: MPI.Comm, bounds: Any, n: Any, partitioner: Any) -> dolfinx.mesh.Mesh:
     """Create a tetrahedral mesh of a box, ``n = [nx, ny, nz]`` cells."""
     pts = [np.asarray(bounds[0], dtype=float)[:3], np.asarray(bounds[1], dtype=float)[:3]]
     return dolfinx.mesh.create_box(
@@ -180,7 +133,7 @@ def create_box(comm: MPI.Comm, bounds: Any, n: Any) -> dolfinx.mesh.Mesh:
         pts,
         [int(n[0]), int(n[1]), int(n[2])],
         cell_type=dolfinx.mesh.CellType.tetrahedron,
-        partitioner=block_partitioner(),
+        partitioner=partitioner,
     )
 
 

@@ -257,14 +257,3 @@ class Expression:
 
     def __repr__(self) -> str:
         return f"Expression({self.text!r})"
-
-
-def vector_expression(
-    texts: Any, params: Mapping[str, float] | None, gdim: int, where: str
-) -> list[Expression]:
-    """Compile a list of ``gdim`` component expressions (e.g. a velocity)."""
-    if not isinstance(texts, list | tuple):
-        raise ExpressionError(f"{where}: expected a list of {gdim} expressions")
-    if len(texts) < gdim:
-        raise ExpressionError(f"{where}: expected {gdim} components, got {len(texts)}")
-    return [Expression(s, params, f"{where}[{i}]") for i, s in enumerate(texts[:gdim])]

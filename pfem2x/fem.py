@@ -10,8 +10,6 @@ from __future__ import annotations
 from collections import Counter
 from typing import Any
 
-import numpy as np
-
 from pfem2x import compat
 from pfem2x.compat import PETSc
 
@@ -105,10 +103,3 @@ class LinearSolver:
     def destroy(self) -> None:
         """Free PETSc objects."""
         self.ksp.destroy()
-
-
-def owned_values(u: Any) -> np.ndarray:
-    """The owned (non-ghost) entries of a Function's array."""
-    im = u.function_space.dofmap.index_map
-    bs = u.function_space.dofmap.index_map_bs
-    return u.x.array[: im.size_local * bs]

@@ -16,6 +16,7 @@ import numpy as np
 
 from pfem2x import compat
 from pfem2x.compat import MPI
+from pfem2x.partition import block_partitioner, rectangle_partitioner
 
 __all__ = ["Domain", "GeometryTable", "MeshError", "build_mesh", "geometry_table", "read_geo"]
 
@@ -286,13 +287,13 @@ def build_mesh(
     if kind == "interval":
         lo, hi = float(np.ravel(bounds[0])[0]), float(np.ravel(bounds[1])[0])
         n = int(np.ravel(cells)[0])
-        mesh = compat.create_interval(comm, (lo, hi), n)
+        mesh = compat.create_interval(comm, (lo, hi), n, block_partitioner())
     elif kind == "rectangle":
-        mesh = compat.create_rectangle(
-            comm, bounds, cells, diagonal=diagonal.replace("/", "_"), grid=partition
-        )
+        diag = diagonal.replace("/", "_")
+        part = rectangle_partitioner(int(cells[0]), int(cells[1]), diag, partition)
+        mesh = compat.create_rectangle(comm, bounds, cells, diag, part)
     elif kind == "box":
-        mesh = compat.create_box(comm, bounds, cells)
+        mesh = compat.create_box(comm, bounds, cells, block_partitioner())
     elif kind == "gmsh":
         if file is None:
             raise MeshError("mesh.file: required for kind = 'gmsh'")

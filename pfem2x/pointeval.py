@@ -15,28 +15,9 @@ import numpy as np
 from pfem2x import compat
 from pfem2x.compat import MPI
 from pfem2x.mesh import Domain
+from pfem2x.parallel import alltoallv_rows, box_requests, rank_boxes
 
-__all__ = ["PointEvaluator", "alltoallv_rows"]
-
-
-def alltoallv_rows(comm: MPI.Comm, blocks: list[np.ndarray], ncol: int) -> list[np.ndarray]:
-    """Send ``blocks[r]`` (``(m_r, ncol)`` float64) to rank ``r``; returns the blocks received."""
-    size = comm.size
-    counts = np.array([b.shape[0] for b in blocks], dtype=np.int64)
-    rcounts = np.empty(size, dtype=np.int64)
-    comm.Alltoall(counts, rcounts)
-    sbuf = (
-        np.ascontiguousarray(np.concatenate(blocks, axis=0), dtype=np.float64)
-        if counts.sum()
-        else np.zeros((0, ncol))
-    )
-    rbuf = np.empty((int(rcounts.sum()), ncol))
-    sc = counts * ncol
-    rc = rcounts * ncol
-    sd = np.concatenate([[0], np.cumsum(sc)[:-1]]).astype(np.int64)
-    rd = np.concatenate([[0], np.cumsum(rc)[:-1]]).astype(np.int64)
-    comm.Alltoallv([sbuf, (sc, sd), MPI.DOUBLE], [rbuf, (rc, rd), MPI.DOUBLE])
-    return [rbuf[rd[r] // ncol : (rd[r] + rc[r]) // ncol] for r in range(size)]
+__all__ = ["PointEvaluator"]
 
 
 class PointEvaluator:
@@ -63,12 +44,7 @@ class PointEvaluator:
             if self.n_owned
             else None
         )
-        if self.n_owned:
-            c = t.coords[: self.n_owned]
-            lo, hi = c.min(axis=(0, 1)), c.max(axis=(0, 1))
-        else:
-            lo, hi = np.full(self.gdim, np.inf), np.full(self.gdim, -np.inf)
-        self.rank_boxes = np.array(self.comm.allgather(np.stack([lo, hi])))  # (size, 2, gdim)
+        self.rank_boxes = rank_boxes(self.comm, t.coords[: self.n_owned], self.gdim)
         span = float(np.max(t.bbox[1] - t.bbox[0]))
         self.pad = 1e-9 * max(span, 1.0)
 
@@ -115,15 +91,8 @@ class PointEvaluator:
         size, me = comm.size, comm.rank
         k = vals.shape[1]
         miss = np.flatnonzero(~found)
-        boxes = self.rank_boxes
         xm = x[miss]
-        inside = np.all(
-            (xm[:, None, :] >= boxes[None, :, 0, :] - self.pad)
-            & (xm[:, None, :] <= boxes[None, :, 1, :] + self.pad),
-            axis=2,
-        )
-        inside[:, me] = False
-        req = [np.flatnonzero(inside[:, r]) for r in range(size)]
+        req = box_requests(xm, self.rank_boxes, self.pad, skip=me)
         got = alltoallv_rows(comm, [xm[i] for i in req], self.gdim)
         replies = []
         for pts in got:

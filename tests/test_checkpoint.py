@@ -116,7 +116,7 @@ def test_resume_matches_uninterrupted(shared_tmp, case):
             scale = max(float(np.abs(a[k]).max(initial=0.0)), 1e-300)
             assert np.abs(a[k] - b[k]).max(initial=0.0) <= 1e-13 * scale, k
     else:
-        # The built-in meshes are partitioned deterministically (compat.block_partitioner),
+        # The built-in meshes are partitioned deterministically (partition.block_partitioner),
         # so the resumed run continues on the same partition: round-off only.
         cells_a = full.solver.checkpoint()["mesh.cells"]
         cells_b = resumed.solver.checkpoint()["mesh.cells"]

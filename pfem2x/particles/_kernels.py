@@ -5,6 +5,13 @@ Every kernel works on plain arrays of the cached mesh arrays (see
 cells in compiled code. All of them are written for any dimension 1..3 and
 work with Numba 0.56 (Debian) and 0.68 (PyPI).
 
+The public kernels take the mesh packed in one :class:`MeshArrays` tuple
+(and a move its state and parameters as :class:`MoveState` and
+:class:`MoveParams`); they unpack it and pass plain arrays to the private
+loops. Keep it so: members of a tuple unpacked inside a looping kernel, and
+arrays handed to inline helpers in a hot loop, are reference-counted in the
+loop (atomic operations; measured 3-5x slower moves); arguments are borrowed.
+
 Facet codes in ``nbr`` (cells, tdim+1): ``>= 0`` the neighbour cell (for a
 periodic facet: the cell holding the image point), ``WALL = -1``,
 ``REMOTE = -2`` (beyond this rank's ghost layer, or a periodic image that is
@@ -13,6 +20,8 @@ not local), ``OUTFLOW = -3``. ``pshift`` (cells, tdim+1) is ``0`` or
 """
 
 from __future__ import annotations
+
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
@@ -35,6 +44,32 @@ STAGE_DONE = 2
 
 TOL = 1e-10  # barycentric tolerance for "inside"
 EPS_IN = 1e-9  # barycentric offset used to push a point back inside a wall
+
+MeshArrays = namedtuple(
+    "MeshArrays", ["origin", "inv", "coords", "h", "dofs", "nbr", "pshift", "period", "n_owned"]
+)
+MeshArrays.__doc__ = """The mesh as the kernels see it (local cells, owned then ghosts).
+
+``origin (cells, gdim)`` vertex 0, ``inv (cells, tdim, gdim)`` inverse
+affine maps (barycentrics ``lambda[1:] = inv @ (x - origin)``), ``coords
+(cells, tdim+1, gdim)`` vertices, ``h (cells,)`` cell sizes, ``dofs (cells,
+tdim+1)`` P1 dofs, ``nbr``/``pshift (cells, tdim+1)`` facet codes (module
+docstring), ``period (gdim,)`` box lengths, ``n_owned`` owned cells.
+"""
+
+MoveState = namedtuple("MoveState", ["x", "cell", "t_left", "aux", "acc", "stage", "status"])
+MoveState.__doc__ = """Per-particle state of a move (updated in place by :func:`advect_p1`).
+
+``x (n, gdim)`` positions, ``cell (n,)`` cells, ``t_left (n,)`` time left on
+the path (stage 0) or Newton iterations spent (stage 1), ``aux (n, gdim)``
+accumulated displacement (stage 0) or the anchor ``y`` of eq. (2.10)
+(stage 1), ``acc (n,)`` source integral, ``stage (n,)``, ``status (n,)`` int8.
+"""
+
+MoveParams = namedtuple("MoveParams", ["dt", "theta", "courant", "gcourant", "nsub", "has_q"])
+MoveParams.__doc__ = """Parameters of one move: step ``dt``, X-IVAS ``theta``, sub-step
+limits ``courant`` and ``gcourant`` (or ``nsub > 0`` fixed sub-steps), and
+``has_q`` (a nodal source is integrated along the path)."""
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -168,8 +203,13 @@ def _grad_norm(vals, dofs, c, inv):
 
 
 @njit(cache=True, error_model="numpy")
-def grad_norms(vals, dofs, cells, inv):
+def grad_norms(vals, cells, M):
     """:func:`_grad_norm` for many cells."""
+    return _grad_norms(vals, M.dofs, cells, M.inv)
+
+
+@njit(cache=True, error_model="numpy")
+def _grad_norms(vals, dofs, cells, inv):
     out = np.empty(cells.shape[0])
     for p in range(cells.shape[0]):
         out[p] = _grad_norm(vals, dofs, cells[p], inv)
@@ -177,12 +217,17 @@ def grad_norms(vals, dofs, cells, inv):
 
 
 @njit(cache=True, error_model="numpy")
-def locate_many(x, cells, origin, inv, nbr, pshift, period, n_owned, maxit):
+def locate_many(x, cells, M, maxit):
     """Walk every point ``x[p]`` from ``cells[p]``; returns ``(cells, status, shifts)``.
 
     ``x`` is modified in place (walls, periodic wrap). Status as in :func:`walk`,
     with ``ST_GHOST`` for points found in a ghost cell.
     """
+    return _locate_many(x, cells, M.origin, M.inv, M.nbr, M.pshift, M.period, M.n_owned, maxit)
+
+
+@njit(cache=True, error_model="numpy")
+def _locate_many(x, cells, origin, inv, nbr, pshift, period, n_owned, maxit):
     n = x.shape[0]
     gdim = x.shape[1]
     out = np.empty(n, dtype=np.int32)
@@ -207,8 +252,13 @@ def locate_many(x, cells, origin, inv, nbr, pshift, period, n_owned, maxit):
 
 
 @njit(cache=True, error_model="numpy")
-def contains(x, cells, origin, inv, tol):
+def contains(x, cells, M, tol):
     """Whether each ``x[p]`` lies in ``cells[p]`` (barycentric tolerance ``tol``)."""
+    return _contains(x, cells, M.origin, M.inv, tol)
+
+
+@njit(cache=True, error_model="numpy")
+def _contains(x, cells, origin, inv, tol):
     n = x.shape[0]
     out = np.zeros(n, dtype=np.bool_)
     lam = np.empty(4)
@@ -221,8 +271,13 @@ def contains(x, cells, origin, inv, tol):
 
 
 @njit(cache=True, error_model="numpy")
-def clamp_into(x, cells, origin, inv, coords):
+def clamp_into(x, cells, M):
     """Move each ``x[p]`` to the closest point of ``cells[p]`` in barycentric terms."""
+    _clamp_into(x, cells, M.origin, M.inv, M.coords)
+
+
+@njit(cache=True, error_model="numpy")
+def _clamp_into(x, cells, origin, inv, coords):
     n = x.shape[0]
     gdim = x.shape[1]
     lam = np.empty(4)
@@ -517,32 +572,7 @@ def _advect_p1_any(
 
 
 @njit(cache=True, error_model="numpy")
-def advect_p1(
-    x,
-    cell,
-    t_left,
-    aux,
-    acc,
-    stage,
-    status,
-    dt,
-    un,
-    un1,
-    theta,
-    q,
-    has_q,
-    courant,
-    gcourant,
-    nsub,
-    origin,
-    inv,
-    nbr,
-    pshift,
-    period,
-    hc,
-    dofs,
-    n_owned,
-):
+def advect_p1(P, un, un1, q, S, M):
     """Fused X-IVAS move + locate of every unfinished particle (P1 velocity).
 
     Heun (RK2) sub-steps along the streamline of ``un`` (``(ndofs, gdim)``),
@@ -553,10 +583,15 @@ def advect_p1(
     when ``has_q``. ``aux`` holds the accumulated displacement (stage 0) or
     the anchor ``y`` (stage 1). Returns the number of sub-steps taken.
 
-    Triangles in 2D take a specialised path (scalar registers instead of
-    small work arrays); it performs the same floating-point operations in
-    the same order, so both paths give identical results.
+    ``P`` is a :class:`MoveState` (updated in place), ``S`` a
+    :class:`MoveParams`, ``M`` the :class:`MeshArrays`. Triangles in 2D take
+    a specialised path (scalar registers instead of small work arrays); it
+    performs the same floating-point operations in the same order, so both
+    paths give identical results.
     """
+    x, cell, t_left, aux, acc, stage, status = P
+    dt, theta, courant, gcourant, nsub, has_q = S
+    origin, inv, _, hc, dofs, nbr, pshift, period, n_owned = M
     if x.shape[1] == 2 and inv.shape[1] == 2:
         return _advect_p1_tri(
             x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
@@ -826,8 +861,13 @@ def _advect_p1_tri(
 
 
 @njit(cache=True, error_model="numpy")
-def evaluate_p1(x, cells, vals, origin, inv, dofs):
+def evaluate_p1(x, cells, vals, M):
     """Values of a P1 field ``vals (ndofs, k)`` at the points ``x`` in ``cells``."""
+    return _evaluate_p1(x, cells, vals, M.origin, M.inv, M.dofs)
+
+
+@njit(cache=True, error_model="numpy")
+def _evaluate_p1(x, cells, vals, origin, inv, dofs):
     n = x.shape[0]
     k = vals.shape[1]
     out = np.empty((n, k))
@@ -843,13 +883,18 @@ def evaluate_p1(x, cells, vals, origin, inv, dofs):
 
 
 @njit(cache=True, error_model="numpy")
-def project_accumulate(x, cells, vals, origin, inv, dofs, coords, hc, acc, linear):
+def project_accumulate(x, cells, vals, M, acc, linear):
     """Accumulate the per-node moments of a particle → P1 projection into ``acc``.
 
     Average: columns ``[W, W*T (k)]``. Linear (``linear=True``): columns
     ``[W, count, W*h, W*dx (g), W*dx⊗dx (g(g+1)/2), W*T (k), W*T*dx (k*g)]``
     with ``W = N_i(x_p)`` and ``dx = x_p - x_i``.
     """
+    _project_accumulate(x, cells, vals, M.origin, M.inv, M.dofs, M.coords, M.h, acc, linear)
+
+
+@njit(cache=True, error_model="numpy")
+def _project_accumulate(x, cells, vals, origin, inv, dofs, coords, hc, acc, linear):
     if x.shape[1] == 2 and dofs.shape[1] == 3:
         _project_accumulate_tri(x, cells, vals, origin, inv, dofs, coords, hc, acc, linear)
         return

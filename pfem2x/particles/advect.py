@@ -134,6 +134,9 @@ def advect(
     cloud.field("_acc")[:] = 0.0
     cloud.field2d("_aux")[:] = 0.0
     cloud.field("_stage")[:] = K.STAGE_PATH
+    params = K.MoveParams(
+        float(dt), float(theta), float(courant), float(gradient_courant), nsub, bool(has_q)
+    )
     stats = LocateStats()
     try:
         while True:
@@ -150,7 +153,7 @@ def advect(
                 parked = np.flatnonzero(stage == K.STAGE_PATH) if general else np.zeros(0, int)
                 stage[parked] = K.STAGE_DONE  # the general path owns stage-0 particles
                 st2 = np.zeros(n, dtype=np.int8)
-                stats.substeps += K.advect_p1(
+                state = K.MoveState(
                     cloud.x,
                     cloud.cells,
                     cloud.field("_tl"),
@@ -158,20 +161,8 @@ def advect(
                     cloud.field("_acc"),
                     stage,
                     st2,
-                    float(dt),
-                    un,
-                    un1,
-                    float(theta),
-                    q,
-                    has_q,
-                    float(courant),
-                    float(gradient_courant),
-                    nsub,
-                    *pm.kernel_args(),
-                    pm.h,
-                    pm.dofs,
-                    pm.n_owned,
                 )
+                stats.substeps += K.advect_p1(state, un, un1, q, params, pm.arrays)
                 stage[parked] = K.STAGE_PATH
                 busy = status == K.ST_OK
                 status[busy] = st2[busy]
@@ -195,13 +186,13 @@ def advect(
 def _eval_velocity(pm, velocity, un, vel_call, x, cells, t):
     if vel_call:
         return np.asarray(velocity(x, t), dtype=np.float64).reshape(len(x), pm.gdim)
-    return K.evaluate_p1(x, cells, un, pm.origin, pm.inv, pm.dofs)
+    return K.evaluate_p1(x, cells, un, pm.arrays)
 
 
 def _eval_source(pm, source, src_call, q, x, cells, t):
     if src_call:
         return np.asarray(source(x, t), dtype=np.float64).reshape(len(x))
-    return K.evaluate_p1(x, cells, q.reshape(-1, 1), pm.origin, pm.inv, pm.dofs)[:, 0]
+    return K.evaluate_p1(x, cells, q.reshape(-1, 1), pm.arrays)[:, 0]
 
 
 def _general_path(
@@ -226,7 +217,6 @@ def _general_path(
     stage = cloud.field("_stage")
     tl_all = cloud.field("_tl")
     idx = np.flatnonzero((stage == K.STAGE_PATH) & (tl_all > 1e-14 * dt))
-    kargs = pm.kernel_args()
     rate_g = np.zeros(cloud.n)  # directional velocity-gradient estimate of the last sub-step
     while len(idx):
         x = cloud.x[idx]
@@ -248,7 +238,7 @@ def _general_path(
                     rate_g[idx[new]] = dv / np.maximum(np.linalg.norm(hp * v1[new], axis=1), 1e-300)
                 rate = np.maximum(rate, rate_g[idx] / gcourant)
             elif gcourant > 0.0:
-                g = K.grad_norms(un, pm.dofs, c, pm.inv)
+                g = K.grad_norms(un, c, pm.arrays)
                 rate = np.maximum(rate, g / gcourant)
             m = np.maximum(np.ceil(tl * rate), 1.0)
         h = tl / m
@@ -256,7 +246,7 @@ def _general_path(
         if vel_call:
             cm = c
         else:
-            cm, stm, _ = K.locate_many(xm, c, *kargs, pm.n_owned, MAXIT)
+            cm, stm, _ = K.locate_many(xm, c, pm.arrays, MAXIT)
             bad = (stm != K.ST_OK) & (stm != K.ST_GHOST)
             cm = np.where(bad, c, cm)
             xm = np.where(bad[:, None], x, xm)
@@ -269,7 +259,7 @@ def _general_path(
         if source is not None:
             q0 = _eval_source(pm, source, src_call, q, x, c, tn)
             q1 = _eval_source(pm, source, src_call, q, xn, c, tn + h) if src_call else None
-        cn, st, shifts = K.locate_many(xn, c, *kargs, pm.n_owned, MAXIT)
+        cn, st, shifts = K.locate_many(xn, c, pm.arrays, MAXIT)
         okw = (st == K.ST_OK) | (st == K.ST_GHOST)
         if source is not None:
             if not src_call:

@@ -293,7 +293,7 @@ class Cloud:
         c = self.cells
         if (c < 0).any() or (c >= pm.n_owned).any():
             return False
-        return bool(K.contains(self.x, c, pm.origin, pm.inv, 1e-8).all())
+        return bool(K.contains(self.x, c, pm.arrays, 1e-8).all())
 
     def items(self) -> Iterable[tuple[str, np.ndarray]]:
         """``(name, values)`` of the public fields."""

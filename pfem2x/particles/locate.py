@@ -70,17 +70,7 @@ def locate_points(
         has = g >= 0
         if has.any():
             xx = x[has].copy()
-            c, st, _ = K.locate_many(
-                xx,
-                g[has],
-                pm.origin,
-                pm.inv,
-                pm.nbr_plain,
-                np.zeros_like(pm.pshift),
-                pm.period,
-                pm.n_owned,
-                MAXIT,
-            )
+            c, st, _ = K.locate_many(xx, g[has], pm.arrays_plain, MAXIT)
             moved = np.any(xx != x[has], axis=1)  # a wall projection: not inside
             ok = ((st == K.ST_OK) | (st == K.ST_GHOST)) & ~moved
             sub = np.flatnonzero(has)
@@ -143,7 +133,7 @@ def resolve(cloud: Cloud, status: np.ndarray, stats: LocateStats) -> tuple[bool,
         li = remote[lost]
         stats.clamped += len(li)
         xs = cloud.x[li].copy()
-        K.clamp_into(xs, cloud.cells[li].copy(), pm.origin, pm.inv, pm.coords)
+        K.clamp_into(xs, cloud.cells[li].copy(), pm.arrays)
         cloud.x[li] = xs
         lc = cloud.cells[li]
         rank_r[lost] = pm.owner_of(lc)
@@ -168,7 +158,7 @@ def relocate(cloud: Cloud) -> LocateStats:
     pm = cloud.pmesh
     stats = LocateStats()
     x = cloud.x
-    c, st, _ = K.locate_many(x, cloud.cells.copy(), *pm.kernel_args(), pm.n_owned, MAXIT)
+    c, st, _ = K.locate_many(x, cloud.cells.copy(), pm.arrays, MAXIT)
     cloud.cells[:] = c
     status = st
     while True:

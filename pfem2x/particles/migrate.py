@@ -17,32 +17,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from pfem2x.compat import MPI
+from pfem2x.parallel import alltoallv_rows, box_requests
 from pfem2x.particles.cloud import Cloud
 from pfem2x.particles.pmesh import ParticleMesh
 
-__all__ = ["alltoallv_rows", "exchange", "find_owners"]
-
-
-def alltoallv_rows(comm: MPI.Comm, blocks: list[np.ndarray], ncol: int) -> list[np.ndarray]:
-    """Send ``blocks[r]`` (``(m_r, ncol)`` float64) to rank ``r``; returns the blocks received."""
-    size = comm.size
-    counts = np.array([b.shape[0] for b in blocks], dtype=np.int64)
-    rcounts = np.empty(size, dtype=np.int64)
-    comm.Alltoall(counts, rcounts)
-    sbuf = np.zeros((0, ncol))
-    if counts.sum():
-        sbuf = np.ascontiguousarray(np.concatenate(blocks, axis=0))
-    rbuf = np.empty((int(rcounts.sum()), ncol))
-    sc = (counts * ncol).astype(np.int64)
-    rc = (rcounts * ncol).astype(np.int64)
-    sd = np.concatenate([[0], np.cumsum(sc)[:-1]])
-    rd = np.concatenate([[0], np.cumsum(rc)[:-1]])
-    comm.Alltoallv([sbuf, (sc, sd), MPI.DOUBLE], [rbuf, (rc, rd), MPI.DOUBLE])
-    out = []
-    for r in range(size):
-        out.append(rbuf[rd[r] // max(ncol, 1) : (rd[r] + rc[r]) // max(ncol, 1)])
-    return out
+__all__ = ["exchange", "find_owners"]
 
 
 def find_owners(pm: ParticleMesh, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -57,19 +36,10 @@ def find_owners(pm: ParticleMesh, x: np.ndarray) -> tuple[np.ndarray, np.ndarray
         rank = np.where(c >= 0, 0, -1).astype(np.int32)
         return rank, np.where(c >= 0, c + pm.cell_range[0], -1).astype(np.int64)
     size = comm.size
-    boxes = pm.rank_boxes
     scale = float(np.max(pm.period)) if len(pm.period) else 1.0
     pad = 1e-9 * max(scale, 1.0)
     gd = pm.gdim
-    if n:
-        inside = np.all(
-            (x[:, None, :] >= boxes[None, :, 0, :] - pad)
-            & (x[:, None, :] <= boxes[None, :, 1, :] + pad),
-            axis=2,
-        )
-    else:
-        inside = np.zeros((0, size), dtype=bool)
-    req = [np.flatnonzero(inside[:, r]) for r in range(size)]
+    req = box_requests(x, pm.rank_boxes, pad)
     got = alltoallv_rows(comm, [x[i].reshape(-1, gd) for i in req], gd)
     replies = []
     for pts in got:

@@ -9,6 +9,7 @@ import numpy as np
 
 from pfem2x import compat
 from pfem2x.compat import MPI
+from pfem2x.parallel import rank_boxes
 from pfem2x.particles import _kernels as K
 
 __all__ = ["ParticleMesh", "FacetMarker"]
@@ -36,6 +37,11 @@ class ParticleMesh:
     ----------
     nbr, pshift, period:
         Facet codes for the kernels (see :mod:`pfem2x.particles._kernels`).
+    arrays:
+        The mesh packed for the kernels (:class:`pfem2x.particles._kernels.MeshArrays`).
+    arrays_plain:
+        The same with periodic and outflow facets as walls (a walk that only
+        looks for the cell of a point, never moves it to an image).
     dofs:
         ``(num_cells, tdim+1)`` P1 dof indices per cell (owned + ghost cells).
     inflow_facets:
@@ -93,18 +99,27 @@ class ParticleMesh:
         plain[(pshift != 0) | (plain == K.OUTFLOW)] = K.WALL
         self.nbr_plain = np.ascontiguousarray(plain)
 
+        self.arrays = K.MeshArrays(
+            self.origin,
+            self.inv,
+            self.coords,
+            self.h,
+            self.dofs,
+            self.nbr,
+            self.pshift,
+            self.period,
+            self.n_owned,
+        )
+        self.arrays_plain = self.arrays._replace(
+            nbr=self.nbr_plain, pshift=np.zeros_like(self.pshift)
+        )
+
         cmap = self.mesh.topology.index_map(self.tdim)
         self.cell_range = compat.index_map_local_range(cmap)
         self.ghost_owners = compat.index_map_ghost_owners(cmap)
         self.ghost_global = compat.index_map_ghosts(cmap)
         self.keys = np.ascontiguousarray(compat.original_cell_index(self.mesh)[: self.n_cells])
-        if self.n_owned:
-            lo = self.coords[: self.n_owned].min(axis=(0, 1))
-            hi = self.coords[: self.n_owned].max(axis=(0, 1))
-        else:
-            lo = np.full(self.gdim, np.inf)
-            hi = np.full(self.gdim, -np.inf)
-        self.rank_boxes = np.array(self.comm.allgather(np.stack([lo, hi])))  # (size, 2, gdim)
+        self.rank_boxes = rank_boxes(self.comm, self.coords[: self.n_owned], self.gdim)
 
     # ------------------------------------------------------------------ helpers
     def _facet_midpoints(self) -> np.ndarray:
@@ -192,10 +207,6 @@ class ParticleMesh:
         g = cells >= self.n_owned
         out[g] = self.ghost_owners[cells[g] - self.n_owned]
         return out
-
-    def kernel_args(self) -> tuple:
-        """``(origin, inv, nbr, pshift, period)`` for :func:`_kernels.walk`."""
-        return self.origin, self.inv, self.nbr, self.pshift, self.period
 
 
 def _pad3(x: np.ndarray) -> np.ndarray:

@@ -112,9 +112,7 @@ def project(
     vec = _work_vector(pm, ncol)
     acc = np.asarray(vec.array).reshape(-1, ncol)
     acc[:] = 0.0
-    K.project_accumulate(
-        cloud.x, cloud.cells, vals, pm.origin, pm.inv, pm.dofs, pm.coords, pm.h, acc, linear
-    )
+    K.project_accumulate(cloud.x, cloud.cells, vals, pm.arrays, acc, linear)
     compat.scatter_reverse_add(vec)
     compat.scatter_forward(vec)
     nd = acc.shape[0]
@@ -152,7 +150,7 @@ def evaluate(cloud: Cloud, f: Any) -> np.ndarray:
     """Values of a P1 Function / nodal array at the particles: ``(n,)`` or ``(n, k)``."""
     pm = cloud.pmesh
     a = nodal_values(pm, f)
-    v = K.evaluate_p1(cloud.x, cloud.cells, a, pm.origin, pm.inv, pm.dofs)
+    v = K.evaluate_p1(cloud.x, cloud.cells, a, pm.arrays)
     return v[:, 0] if a.shape[1] == 1 else v
 
 
@@ -176,4 +174,4 @@ def add_increment(cloud: Cloud, name: str, delta: Any, scale: float = 1.0) -> No
 def _eval_at(pm: Any, f: Any, x: np.ndarray, cells: np.ndarray) -> np.ndarray:
     """P1 field ``f`` at points ``x`` in local ``cells``: ``(m, k)``."""
     a = nodal_values(pm, f)
-    return K.evaluate_p1(np.ascontiguousarray(x), cells, a, pm.origin, pm.inv, pm.dofs)
+    return K.evaluate_p1(np.ascontiguousarray(x), cells, a, pm.arrays)
