@@ -139,97 +139,117 @@ class Expression:
     def _err(self, what: str) -> ExpressionError:
         return ExpressionError(f"{self.where}: {what} is not allowed in {self.text!r}")
 
-    def _compile(self, node: ast.AST) -> Node:  # noqa: C901 - one branch per node type
-        if isinstance(node, ast.Constant):
-            if isinstance(node.value, bool) or not isinstance(node.value, int | float):
-                raise self._err(f"the literal {node.value!r}")
-            v = float(node.value)
-            return lambda env: v
-        if isinstance(node, ast.Name):
-            name = node.id
-            if name.startswith("_"):
-                raise self._err(f"the name {name!r}")
-            if name in VARIABLES:
-                self.names.add(name)
-                return lambda env: env[name]
-            if name in self.params:
-                self.names.add(name)
-                v = float(self.params[name])
-                return lambda env: v
-            if name in CONSTANTS:
-                v = CONSTANTS[name]
-                return lambda env: v
-            if name in FUNCTIONS:
-                raise self._err(f"the function {name!r} without a call")
-            raise ExpressionError(
-                f"{self.where}: unknown name {name!r} in {self.text!r} "
-                f"(known: x, y, z, t, params: {', '.join(sorted(self.params)) or 'none'})"
-            )
-        if isinstance(node, ast.BinOp):
-            op = _BINOPS.get(type(node.op))
-            if op is None:
-                raise self._err(f"the operator {type(node.op).__name__}")
-            a, b = self._compile(node.left), self._compile(node.right)
-            return lambda env: op(a(env), b(env))
-        if isinstance(node, ast.UnaryOp):
-            if isinstance(node.op, ast.Not):
-                a = self._compile(node.operand)
-                return lambda env: np.logical_not(a(env))
-            op = _UNARY.get(type(node.op))
-            if op is None:
-                raise self._err(f"the operator {type(node.op).__name__}")
-            a = self._compile(node.operand)
-            return lambda env: op(a(env))
-        if isinstance(node, ast.BoolOp):
-            parts = [self._compile(v) for v in node.values]
-            red = np.logical_and if isinstance(node.op, ast.And) else np.logical_or
-
-            def boolop(env: Env) -> Any:
-                out = parts[0](env)
-                for p in parts[1:]:
-                    out = red(out, p(env))
-                return out
-
-            return boolop
-        if isinstance(node, ast.Compare):
-            left = self._compile(node.left)
-            ops = []
-            for op_node, comp in zip(node.ops, node.comparators, strict=True):
-                op = _CMP.get(type(op_node))
-                if op is None:
-                    raise self._err(f"the comparison {type(op_node).__name__}")
-                ops.append((op, self._compile(comp)))
-
-            def compare(env: Env) -> Any:
-                a = left(env)
-                out = None
-                for op, f in ops:
-                    b = f(env)
-                    r = op(a, b)
-                    out = r if out is None else np.logical_and(out, r)
-                    a = b
-                return out
-
-            return compare
-        if isinstance(node, ast.IfExp):
-            c, a, b = self._compile(node.test), self._compile(node.body), self._compile(node.orelse)
-            return lambda env: np.where(c(env), a(env), b(env))
-        if isinstance(node, ast.Call):
-            if not isinstance(node.func, ast.Name):
-                raise self._err("calling an attribute or computed function")
-            name = node.func.id
-            if name not in FUNCTIONS:
-                raise self._err(f"the function {name!r}")
-            if node.keywords:
-                raise self._err("keyword arguments")
-            fn = FUNCTIONS[name]
-            args = [self._compile(a) for a in node.args]
-            return lambda env: fn(*(a(env) for a in args))
+    def _compile(self, node: ast.AST) -> Node:
+        """Check ``node`` against the whitelist and compile it into a closure of an env."""
+        compiler = _COMPILERS.get(type(node))
+        if compiler is not None:
+            return compiler(self, node)
         if isinstance(node, ast.Attribute):
             raise self._err(f"attribute access '.{node.attr}'")
         if isinstance(node, ast.Subscript):
             raise self._err("subscripting")
         raise self._err(f"the syntax {type(node).__name__}")
+
+    def _constant(self, node: ast.Constant) -> Node:
+        """A numeric literal (booleans, strings, ... refused)."""
+        if isinstance(node.value, bool) or not isinstance(node.value, int | float):
+            raise self._err(f"the literal {node.value!r}")
+        v = float(node.value)
+        return lambda env: v
+
+    def _name(self, node: ast.Name) -> Node:
+        """A variable (read from the env), a param or a constant (folded to its value)."""
+        name = node.id
+        if name.startswith("_"):
+            raise self._err(f"the name {name!r}")
+        if name in VARIABLES:
+            self.names.add(name)
+            return lambda env: env[name]
+        if name in self.params:
+            self.names.add(name)
+            v = float(self.params[name])
+            return lambda env: v
+        if name in CONSTANTS:
+            v = CONSTANTS[name]
+            return lambda env: v
+        if name in FUNCTIONS:
+            raise self._err(f"the function {name!r} without a call")
+        raise ExpressionError(
+            f"{self.where}: unknown name {name!r} in {self.text!r} "
+            f"(known: x, y, z, t, params: {', '.join(sorted(self.params)) or 'none'})"
+        )
+
+    def _binop(self, node: ast.BinOp) -> Node:
+        """An arithmetic operator of :data:`_BINOPS`."""
+        op = _BINOPS.get(type(node.op))
+        if op is None:
+            raise self._err(f"the operator {type(node.op).__name__}")
+        a, b = self._compile(node.left), self._compile(node.right)
+        return lambda env: op(a(env), b(env))
+
+    def _unaryop(self, node: ast.UnaryOp) -> Node:
+        """``not`` (elementwise) or a sign of :data:`_UNARY`."""
+        if isinstance(node.op, ast.Not):
+            a = self._compile(node.operand)
+            return lambda env: np.logical_not(a(env))
+        op = _UNARY.get(type(node.op))
+        if op is None:
+            raise self._err(f"the operator {type(node.op).__name__}")
+        a = self._compile(node.operand)
+        return lambda env: op(a(env))
+
+    def _boolop(self, node: ast.BoolOp) -> Node:
+        """``and`` / ``or``, elementwise, reduced left to right."""
+        parts = [self._compile(v) for v in node.values]
+        red = np.logical_and if isinstance(node.op, ast.And) else np.logical_or
+
+        def boolop(env: Env) -> Any:
+            out = parts[0](env)
+            for p in parts[1:]:
+                out = red(out, p(env))
+            return out
+
+        return boolop
+
+    def _compare(self, node: ast.Compare) -> Node:
+        """A comparison chain ``a < b <= c``, the elementwise ``and`` of its links."""
+        left = self._compile(node.left)
+        ops = []
+        for op_node, comp in zip(node.ops, node.comparators, strict=True):
+            op = _CMP.get(type(op_node))
+            if op is None:
+                raise self._err(f"the comparison {type(op_node).__name__}")
+            ops.append((op, self._compile(comp)))
+
+        def compare(env: Env) -> Any:
+            a = left(env)
+            out = None
+            for op, f in ops:
+                b = f(env)
+                r = op(a, b)
+                out = r if out is None else np.logical_and(out, r)
+                a = b
+            return out
+
+        return compare
+
+    def _ifexp(self, node: ast.IfExp) -> Node:
+        """``a if c else b``, elementwise (both branches evaluated)."""
+        c, a, b = self._compile(node.test), self._compile(node.body), self._compile(node.orelse)
+        return lambda env: np.where(c(env), a(env), b(env))
+
+    def _call(self, node: ast.Call) -> Node:
+        """A call of a whitelisted function by name, positional arguments only."""
+        if not isinstance(node.func, ast.Name):
+            raise self._err("calling an attribute or computed function")
+        name = node.func.id
+        if name not in FUNCTIONS:
+            raise self._err(f"the function {name!r}")
+        if node.keywords:
+            raise self._err("keyword arguments")
+        fn = FUNCTIONS[name]
+        args = [self._compile(a) for a in node.args]
+        return lambda env: fn(*(a(env) for a in args))
 
     # -- evaluation ----------------------------------------------------------
     def __call__(self, x: np.ndarray, t: float = 0.0) -> np.ndarray:
@@ -257,3 +277,16 @@ class Expression:
 
     def __repr__(self) -> str:
         return f"Expression({self.text!r})"
+
+
+#: The compiler of each whitelisted syntax node type.
+_COMPILERS: dict[type[ast.AST], Callable[[Expression, Any], Node]] = {
+    ast.Constant: Expression._constant,
+    ast.Name: Expression._name,
+    ast.BinOp: Expression._binop,
+    ast.UnaryOp: Expression._unaryop,
+    ast.BoolOp: Expression._boolop,
+    ast.Compare: Expression._compare,
+    ast.IfExp: Expression._ifexp,
+    ast.Call: Expression._call,
+}

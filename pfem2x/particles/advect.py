@@ -11,8 +11,7 @@ migrated with their remaining time and finish their move on the owner.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -106,9 +105,62 @@ def advect(
     LocateStats
         Sub-steps taken, particles deleted at outflow, migrated, fallbacks.
     """
-    pm = cloud.pmesh
     if sort:
         cloud.sort_by_cell()
+    inp = _inputs(
+        cloud.pmesh, velocity, velocity_next, theta, courant, substeps, source, source_field
+    )
+    _add_work_fields(cloud, dt)
+    params = K.MoveParams(
+        float(dt), float(theta), float(courant), float(gradient_courant), inp.nsub, inp.has_q
+    )
+    stats = LocateStats()
+    try:
+        while True:
+            status = _move_round(cloud, inp, params, t, dt, theta, courant, gradient_courant, stats)
+            more, _ = resolve(cloud, status, stats)
+            if not more:
+                break
+        if source is not None:
+            if source_field not in cloud:
+                cloud.add_field(source_field)
+            cloud.field(source_field)[:] += source_scale * cloud.field("_acc")
+    finally:
+        for name in _WORK:
+            cloud.remove_field(name)
+    cloud.invalidate_order()
+    return stats
+
+
+class _Inputs(NamedTuple):
+    """The velocity and source of one :func:`advect` call, checked, with their P1 nodal values.
+
+    ``un`` / ``q`` are placeholders (zeros) when the velocity / source is a
+    callable (``vel_call`` / ``src_call``); ``un1`` is one only without ``theta``.
+    """
+
+    velocity: Any
+    un: np.ndarray
+    un1: np.ndarray
+    vel_call: bool
+    source: Any
+    q: np.ndarray
+    src_call: bool
+    has_q: bool
+    nsub: int
+
+
+def _inputs(
+    pm: ParticleMesh,
+    velocity: VelocityLike,
+    velocity_next: VelocityLike | None,
+    theta: float,
+    courant: float,
+    substeps: int | None,
+    source: SourceLike | None,
+    source_field: str | None,
+) -> _Inputs:
+    """Check the arguments of :func:`advect` and take the nodal values of its P1 fields."""
     gd = pm.gdim
     nsub = int(substeps) if substeps else 0
     vel_call = callable(velocity) and not hasattr(velocity, "x")
@@ -125,89 +177,107 @@ def advect(
     q = nodal_values(pm, source, 1)[:, 0].copy() if has_q else np.zeros(1)
     if source is not None and source_field is None:
         raise ValueError("source needs source_field")
+    return _Inputs(velocity, un, un1, vel_call, source, q, src_call, has_q, nsub)
 
+
+def _add_work_fields(cloud: Cloud, dt: float) -> None:
+    """The per-particle move state: time left, source integral, path / X-IVAS aux, stage."""
     cloud.add_field("_tl", (), dt)
     cloud.add_field("_acc")
-    cloud.add_field("_aux", (gd,))
+    cloud.add_field("_aux", (cloud.pmesh.gdim,))
     cloud.add_field("_stage")
     cloud.field("_tl")[:] = dt
     cloud.field("_acc")[:] = 0.0
     cloud.field2d("_aux")[:] = 0.0
     cloud.field("_stage")[:] = K.STAGE_PATH
-    params = K.MoveParams(
-        float(dt), float(theta), float(courant), float(gradient_courant), nsub, bool(has_q)
+
+
+def _p1_pass(
+    cloud: Cloud,
+    inp: _Inputs,
+    params: K.MoveParams,
+    general: bool,
+    status: np.ndarray,
+    stats: LocateStats,
+) -> None:
+    """The fused P1 kernel: every sub-step, or only the X-IVAS stage after the general path.
+
+    With ``general``, particles still on their path (stage 0) belong to the
+    general path and are parked. Updates ``status`` of particles not stopped yet.
+    """
+    stage = cloud.field("_stage")
+    parked = np.flatnonzero(stage == K.STAGE_PATH) if general else np.zeros(0, int)
+    stage[parked] = K.STAGE_DONE  # the general path owns stage-0 particles
+    st2 = np.zeros(len(status), dtype=np.int8)
+    state = K.MoveState(
+        cloud.x,
+        cloud.cells,
+        cloud.field("_tl"),
+        cloud.field2d("_aux"),
+        cloud.field("_acc"),
+        stage,
+        st2,
     )
-    stats = LocateStats()
-    try:
-        while True:
-            n = cloud.n
-            status = np.zeros(n, dtype=np.int8)
-            general = vel_call or src_call
-            if general:
-                _general_path(
-                    cloud, velocity, un, vel_call, source, src_call, q, t, dt, courant,
-                    gradient_courant, nsub, theta, status, stats,
-                )  # fmt: skip
-            if not general or theta > 0.0:
-                stage = cloud.field("_stage")
-                parked = np.flatnonzero(stage == K.STAGE_PATH) if general else np.zeros(0, int)
-                stage[parked] = K.STAGE_DONE  # the general path owns stage-0 particles
-                st2 = np.zeros(n, dtype=np.int8)
-                state = K.MoveState(
-                    cloud.x,
-                    cloud.cells,
-                    cloud.field("_tl"),
-                    cloud.field2d("_aux"),
-                    cloud.field("_acc"),
-                    stage,
-                    st2,
-                )
-                stats.substeps += K.advect_p1(state, un, un1, q, params, pm.arrays)
-                stage[parked] = K.STAGE_PATH
-                busy = status == K.ST_OK
-                status[busy] = st2[busy]
-            else:
-                ghost = (status == K.ST_OK) & (cloud.cells >= pm.n_owned)
-                status[ghost] = K.ST_GHOST
-            more, _ = resolve(cloud, status, stats)
-            if not more:
-                break
-        if source is not None:
-            if source_field not in cloud:
-                cloud.add_field(source_field)
-            cloud.field(source_field)[:] += source_scale * cloud.field("_acc")
-    finally:
-        for name in _WORK:
-            cloud.remove_field(name)
-    cloud.invalidate_order()
-    return stats
+    pm = cloud.pmesh
+    stats.substeps += K.advect_p1(state, inp.un, inp.un1, inp.q, params, pm.arrays)
+    stage[parked] = K.STAGE_PATH
+    busy = status == K.ST_OK
+    status[busy] = st2[busy]
 
 
-def _eval_velocity(pm, velocity, un, vel_call, x, cells, t):
-    if vel_call:
-        return np.asarray(velocity(x, t), dtype=np.float64).reshape(len(x), pm.gdim)
-    return K.evaluate_p1(x, cells, un, pm.arrays)
+def _move_round(
+    cloud: Cloud,
+    inp: _Inputs,
+    params: K.MoveParams,
+    t0: float,
+    dt: float,
+    theta: float,
+    courant: float,
+    gcourant: float,
+    stats: LocateStats,
+) -> np.ndarray:
+    """Move the particles of this rank as far as they go here; their status codes ``(n,)``.
+
+    Particles stopped in the ghost layer (``ST_GHOST``) or at a boundary go to
+    :func:`resolve`; those with time left continue in the next round.
+    """
+    status = np.zeros(cloud.n, dtype=np.int8)
+    general = inp.vel_call or inp.src_call
+    if general:
+        _general_path(cloud, inp, t0, dt, courant, gcourant, theta, status, stats)
+    if not general or theta > 0.0:
+        _p1_pass(cloud, inp, params, general, status, stats)
+    else:
+        ghost = (status == K.ST_OK) & (cloud.cells >= cloud.pmesh.n_owned)
+        status[ghost] = K.ST_GHOST
+    return status
 
 
-def _eval_source(pm, source, src_call, q, x, cells, t):
-    if src_call:
-        return np.asarray(source(x, t), dtype=np.float64).reshape(len(x))
-    return K.evaluate_p1(x, cells, q.reshape(-1, 1), pm.arrays)[:, 0]
+def _eval_velocity(
+    pm: ParticleMesh, inp: _Inputs, x: np.ndarray, cells: np.ndarray, t: Any
+) -> np.ndarray:
+    """The velocity ``(n, gdim)`` at points ``x`` in ``cells`` at time(s) ``t``."""
+    if inp.vel_call:
+        return np.asarray(inp.velocity(x, t), dtype=np.float64).reshape(len(x), pm.gdim)
+    return K.evaluate_p1(x, cells, inp.un, pm.arrays)
+
+
+def _eval_source(
+    pm: ParticleMesh, inp: _Inputs, x: np.ndarray, cells: np.ndarray, t: Any
+) -> np.ndarray:
+    """The source ``(n,)`` at points ``x`` in ``cells`` at time(s) ``t``."""
+    if inp.src_call:
+        return np.asarray(inp.source(x, t), dtype=np.float64).reshape(len(x))
+    return K.evaluate_p1(x, cells, inp.q.reshape(-1, 1), pm.arrays)[:, 0]
 
 
 def _general_path(
     cloud: Cloud,
-    velocity: Callable | Any,
-    un: np.ndarray,
-    vel_call: bool,
-    source: Any,
-    src_call: bool,
-    q: np.ndarray,
+    inp: _Inputs,
     t0: float,
     dt: float,
     courant: float,
     gcourant: float,
-    nsub: int,
     theta: float,
     status: np.ndarray,
     stats: LocateStats,
@@ -223,52 +293,24 @@ def _general_path(
         c = cloud.cells[idx]
         tl = tl_all[idx]
         tn = t0 + dt - tl
-        v1 = _eval_velocity(pm, velocity, un, vel_call, x, c, tn)
-        if nsub > 0:
-            m = np.maximum(np.ceil(tl / (dt / nsub) - 1e-9), 1.0)
+        v1 = _eval_velocity(pm, inp, x, c, tn)
+        if inp.nsub > 0:
+            m = np.maximum(np.ceil(tl / (dt / inp.nsub) - 1e-9), 1.0)
         else:
-            sp = np.linalg.norm(v1, axis=1)
-            rate = sp / (courant * pm.h[c])
-            if gcourant > 0.0 and vel_call:
-                new = rate_g[idx] == 0.0  # first sub-step: probe the gradient along v1
-                if new.any():
-                    hp = (1.0 / np.maximum(rate[new], 1.0 / tl[new]))[:, None]
-                    vp = _eval_velocity(pm, velocity, un, True, x[new] + hp * v1[new], c, tn[new])
-                    dv = np.linalg.norm(vp - v1[new], axis=1)
-                    rate_g[idx[new]] = dv / np.maximum(np.linalg.norm(hp * v1[new], axis=1), 1e-300)
-                rate = np.maximum(rate, rate_g[idx] / gcourant)
-            elif gcourant > 0.0:
-                g = K.grad_norms(un, c, pm.arrays)
-                rate = np.maximum(rate, g / gcourant)
+            rate = _step_rate(pm, inp, idx, x, c, tl, tn, v1, rate_g, courant, gcourant)
             m = np.maximum(np.ceil(tl * rate), 1.0)
         h = tl / m
-        xm = x + h[:, None] * v1
-        if vel_call:
-            cm = c
-        else:
-            cm, stm, _ = K.locate_many(xm, c, pm.arrays, MAXIT)
-            bad = (stm != K.ST_OK) & (stm != K.ST_GHOST)
-            cm = np.where(bad, c, cm)
-            xm = np.where(bad[:, None], x, xm)
-        v2 = _eval_velocity(pm, velocity, un, vel_call, xm, cm, tn + h)
-        if vel_call:
+        xm, cm = _predictor(pm, inp, x, c, h, v1)
+        v2 = _eval_velocity(pm, inp, xm, cm, tn + h)
+        if inp.vel_call:
             v2 = np.where(np.isfinite(v2), v2, v1)
         xn = x + 0.5 * h[:, None] * (v1 + v2)
         step = np.linalg.norm(xm - x, axis=1)
         rate_g[idx] = np.linalg.norm(v2 - v1, axis=1) / np.maximum(step, 1e-300)
-        if source is not None:
-            q0 = _eval_source(pm, source, src_call, q, x, c, tn)
-            q1 = _eval_source(pm, source, src_call, q, xn, c, tn + h) if src_call else None
         cn, st, shifts = K.locate_many(xn, c, pm.arrays, MAXIT)
-        okw = (st == K.ST_OK) | (st == K.ST_GHOST)
-        if source is not None:
-            if not src_call:
-                q1 = np.where(
-                    okw,
-                    _eval_source(pm, source, src_call, q, xn, np.where(okw, cn, c), tn + h),
-                    q0,
-                )
-            cloud.field("_acc")[idx] += 0.5 * h * (q0 + q1)
+        if inp.source is not None:
+            okw = (st == K.ST_OK) | (st == K.ST_GHOST)
+            cloud.field("_acc")[idx] += _source_step(pm, inp, x, xn, c, cn, okw, tn, h)
         cloud.field2d("_aux")[idx] += xn - shifts - x
         cloud.x[idx] = xn
         cloud.cells[idx] = cn
@@ -278,6 +320,95 @@ def _general_path(
         stop = st != K.ST_OK
         status[idx[stop]] = st[stop]
         idx = idx[~stop & (tl > 0.0)]
+    _end_path(cloud, status, dt, theta)
+
+
+def _step_rate(
+    pm: ParticleMesh,
+    inp: _Inputs,
+    idx: np.ndarray,
+    x: np.ndarray,
+    c: np.ndarray,
+    tl: np.ndarray,
+    tn: np.ndarray,
+    v1: np.ndarray,
+    rate_g: np.ndarray,
+    courant: float,
+    gcourant: float,
+) -> np.ndarray:
+    """Sub-steps per unit time of particles ``idx``: the Courant and velocity-gradient limits.
+
+    A callable velocity has no cell gradient: its directional gradient is
+    ``rate_g`` of the last sub-step, probed along ``v1`` on a first sub-step
+    (``rate_g`` updated in place).
+    """
+    sp = np.linalg.norm(v1, axis=1)
+    rate = sp / (courant * pm.h[c])
+    if gcourant > 0.0 and inp.vel_call:
+        new = rate_g[idx] == 0.0  # first sub-step: probe the gradient along v1
+        if new.any():
+            hp = (1.0 / np.maximum(rate[new], 1.0 / tl[new]))[:, None]
+            vp = _eval_velocity(pm, inp, x[new] + hp * v1[new], c, tn[new])
+            dv = np.linalg.norm(vp - v1[new], axis=1)
+            rate_g[idx[new]] = dv / np.maximum(np.linalg.norm(hp * v1[new], axis=1), 1e-300)
+        rate = np.maximum(rate, rate_g[idx] / gcourant)
+    elif gcourant > 0.0:
+        g = K.grad_norms(inp.un, c, pm.arrays)
+        rate = np.maximum(rate, g / gcourant)
+    return rate
+
+
+def _predictor(
+    pm: ParticleMesh,
+    inp: _Inputs,
+    x: np.ndarray,
+    c: np.ndarray,
+    h: np.ndarray,
+    v1: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The Euler predictor of a Heun sub-step and its cell.
+
+    A P1 velocity is evaluated in the predictor's cell: a predictor that
+    leaves the mesh (not in a cell nor the ghost layer) falls back to ``x``.
+    """
+    xm = x + h[:, None] * v1
+    if inp.vel_call:
+        return xm, c
+    cm, stm, _ = K.locate_many(xm, c, pm.arrays, MAXIT)
+    bad = (stm != K.ST_OK) & (stm != K.ST_GHOST)
+    cm = np.where(bad, c, cm)
+    xm = np.where(bad[:, None], x, xm)
+    return xm, cm
+
+
+def _source_step(
+    pm: ParticleMesh,
+    inp: _Inputs,
+    x: np.ndarray,
+    xn: np.ndarray,
+    c: np.ndarray,
+    cn: np.ndarray,
+    okw: np.ndarray,
+    tn: np.ndarray,
+    h: np.ndarray,
+) -> np.ndarray:
+    """The trapezoid integral of the source over one sub-step from ``x`` to ``xn``.
+
+    A P1 source at the end point needs its cell ``cn``; where the end point
+    left the mesh (``okw`` false) the start value stands in.
+    """
+    q0 = _eval_source(pm, inp, x, c, tn)
+    if inp.src_call:
+        q1 = _eval_source(pm, inp, xn, c, tn + h)
+    else:
+        q1 = np.where(okw, _eval_source(pm, inp, xn, np.where(okw, cn, c), tn + h), q0)
+    return 0.5 * h * (q0 + q1)
+
+
+def _end_path(cloud: Cloud, status: np.ndarray, dt: float, theta: float) -> None:
+    """Particles at the end of their path: to the X-IVAS stage (``theta > 0``) or done."""
+    stage = cloud.field("_stage")
+    tl_all = cloud.field("_tl")
     done = (stage == K.STAGE_PATH) & (tl_all <= 1e-14 * dt) & (status == K.ST_OK)
     if theta > 0.0:
         aux = cloud.field2d("_aux")

@@ -92,14 +92,9 @@ def rebalance(
     order = np.arange(n, dtype=np.int64)
     names = cloud.field_names
     widths = [cloud.field2d(nm).shape[1] for nm in names]
-    vals = (
-        np.ascontiguousarray(np.concatenate([cloud.field2d(nm) for nm in names], axis=1))
-        if names
-        else np.zeros((n, 0))
-    )
     nx, ncell, nvals, src = K.population_add(
         cloud.x,
-        vals,
+        _packed_fields(cloud, names),
         order,
         offsets,
         plan,
@@ -113,30 +108,63 @@ def rebalance(
     remove = np.zeros(n, dtype=bool)
     K.population_remove(cloud.x, order, offsets, plan, remove)
     stats.removed = cloud.remove(remove)
+    values = _unpacked_fields(nvals, names, widths)
+    if names:
+        _count_and_fill(cloud, values, src, nx, ncell, fallback, stats)
+    sl = cloud.append(nx, ncell, values)
+    stats.added = sl.stop - sl.start
+    cloud.sort_by_cell()
+    return stats
+
+
+def _packed_fields(cloud: Cloud, names: list[str]) -> np.ndarray:
+    """All particle fields side by side, ``(n, sum of widths)`` (the kernels' value table)."""
+    if not names:
+        return np.zeros((cloud.n, 0))
+    return np.ascontiguousarray(np.concatenate([cloud.field2d(nm) for nm in names], axis=1))
+
+
+def _unpacked_fields(
+    nvals: np.ndarray, names: list[str], widths: list[int]
+) -> dict[str, np.ndarray]:
+    """Split a value table of :func:`_packed_fields` back into ``{field: (m, width)}`` views."""
     values: dict[str, np.ndarray] = {}
     o = 0
     for nm, w in zip(names, widths, strict=True):
         values[nm] = nvals[:, o : o + w]
         o += w
-    if names:
-        stats.from_fit = int(np.isin(src, (1, 2)).sum())
-        stats.from_idw = int((src == 3).sum())
-        none = src == 0
-        if none.any() and fallback:
-            from pfem2x.particles.transfer import _eval_at  # noqa: PLC0415
+    return values
 
-            for nm, f in fallback.items():
-                if nm in values:
-                    values[nm][none] = _eval_at(pm, f, nx[none], ncell[none]).reshape(
-                        int(none.sum()), -1
-                    )
-            stats.from_mesh = int(none.sum())
-        else:
-            stats.unfilled = int(none.sum())
-    sl = cloud.append(nx, ncell, values)
-    stats.added = sl.stop - sl.start
-    cloud.sort_by_cell()
-    return stats
+
+def _count_and_fill(
+    cloud: Cloud,
+    values: dict[str, np.ndarray],
+    src: np.ndarray,
+    nx: np.ndarray,
+    ncell: np.ndarray,
+    fallback: Mapping[str, Any] | None,
+    stats: PopulationStats,
+) -> None:
+    """Count how the new particles got their values; the mesh fills those no particle was near.
+
+    ``src`` per new particle: 1, 2 a least-squares fit, 3 an inverse-distance
+    average, 0 no particle near (then ``fallback`` gives the value in place,
+    else it stays 0 and counts as unfilled).
+    """
+    stats.from_fit = int(np.isin(src, (1, 2)).sum())
+    stats.from_idw = int((src == 3).sum())
+    none = src == 0
+    if none.any() and fallback:
+        from pfem2x.particles.transfer import _eval_at  # noqa: PLC0415
+
+        for nm, f in fallback.items():
+            if nm in values:
+                values[nm][none] = _eval_at(cloud.pmesh, f, nx[none], ncell[none]).reshape(
+                    int(none.sum()), -1
+                )
+        stats.from_mesh = int(none.sum())
+    else:
+        stats.unfilled = int(none.sum())
 
 
 def seed_inflow(
