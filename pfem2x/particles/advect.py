@@ -307,10 +307,10 @@ def _general_path(
         xn = x + 0.5 * h[:, None] * (v1 + v2)
         step = np.linalg.norm(xm - x, axis=1)
         rate_g[idx] = np.linalg.norm(v2 - v1, axis=1) / np.maximum(step, 1e-300)
+        ends = _source_ends(pm, inp, x, xn, c, tn, h)  # before the walk moves xn (walls)
         cn, st, shifts = K.locate_many(xn, c, pm.arrays, MAXIT)
-        if inp.source is not None:
-            okw = (st == K.ST_OK) | (st == K.ST_GHOST)
-            cloud.field("_acc")[idx] += _source_step(pm, inp, x, xn, c, cn, okw, tn, h)
+        if ends is not None:
+            cloud.field("_acc")[idx] += _source_step(pm, inp, ends, xn, c, cn, st, tn, h)
         cloud.field2d("_aux")[idx] += xn - shifts - x
         cloud.x[idx] = xn
         cloud.cells[idx] = cn
@@ -381,26 +381,47 @@ def _predictor(
     return xm, cm
 
 
-def _source_step(
+def _source_ends(
     pm: ParticleMesh,
     inp: _Inputs,
     x: np.ndarray,
     xn: np.ndarray,
     c: np.ndarray,
+    tn: np.ndarray,
+    h: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray | None] | None:
+    """The source at both ends of a sub-step ``x -> xn``, taken before ``xn`` is walked.
+
+    ``None`` without a source. The end value of a P1 source is left out
+    (``None``): it needs the cell the walk finds, see :func:`_source_step`.
+    """
+    if inp.source is None:
+        return None
+    q0 = _eval_source(pm, inp, x, c, tn)
+    q1 = _eval_source(pm, inp, xn, c, tn + h) if inp.src_call else None
+    return q0, q1
+
+
+def _source_step(
+    pm: ParticleMesh,
+    inp: _Inputs,
+    ends: tuple[np.ndarray, np.ndarray | None],
+    xn: np.ndarray,
+    c: np.ndarray,
     cn: np.ndarray,
-    okw: np.ndarray,
+    st: np.ndarray,
     tn: np.ndarray,
     h: np.ndarray,
 ) -> np.ndarray:
-    """The trapezoid integral of the source over one sub-step from ``x`` to ``xn``.
+    """The trapezoid integral of the source over one sub-step, after the walk of ``xn``.
 
-    A P1 source at the end point needs its cell ``cn``; where the end point
-    left the mesh (``okw`` false) the start value stands in.
+    A P1 source at the end point ``xn`` (as the walk left it) is taken in its
+    cell ``cn``; where the end point left the mesh (status ``st`` neither
+    ``ST_OK`` nor ``ST_GHOST``) the start value stands in.
     """
-    q0 = _eval_source(pm, inp, x, c, tn)
-    if inp.src_call:
-        q1 = _eval_source(pm, inp, xn, c, tn + h)
-    else:
+    q0, q1 = ends
+    if q1 is None:
+        okw = (st == K.ST_OK) | (st == K.ST_GHOST)
         q1 = np.where(okw, _eval_source(pm, inp, xn, np.where(okw, cn, c), tn + h), q0)
     return 0.5 * h * (q0 + q1)
 
