@@ -53,6 +53,7 @@ import ufl
 from pfem2x import compat, fem
 from pfem2x.compat import PETSc
 from pfem2x.mesh import Domain
+from pfem2x.physics.flow.balanced import JumpForce
 from pfem2x.physics.flow.interface import InterfaceGeometry
 from pfem2x.physics.flow.problem import FlowSolver
 from pfem2x.physics.flow.projection import PressureProjection
@@ -93,18 +94,31 @@ class EulerianFlow(FlowSolver):
             rho = compat.dolfinx.fem.Constant(mesh, sc(r1))
             mu = compat.dolfinx.fem.Constant(mesh, sc(m1))
         self._rho = rho
-        # Gravity as rho g with the full pressure. (The interFoam-style p_rgh form,
-        # force -(g.x) grad rho, was tried: twice the spurious wall currents of a
-        # flat interface at rest on P1/P1, so it is not used.)
-        fg = rho * g if np.any(pr.gravity) else None  # no body force without gravity
+        # Gravity with the full pressure. One phase: rho g. Two phases: the balanced
+        # force of pfem2x.physics.flow.balanced (rho g where a cell is in one phase, a
+        # jump force on the cells the interface crosses; a flat interface at rest stays
+        # at rest to round-off). (The interFoam-style p_rgh form, force -(g.x) grad rho
+        # with the smoothed rho, was tried: twice the spurious wall currents of rho g.)
+        #: the balanced two-phase body force (None with one phase or without gravity)
+        self.jump: JumpForce | None = None
+        if pr.two_phase and np.any(pr.gravity):
+            self.jump = JumpForce(
+                self.Q, self.coords, self.dofmap, self.n_owned, r1, r2, pr.gravity[: self.gdim]
+            )
+            self.jump.update(self.phi.x.array)
+            fg = self.jump.force
+        else:
+            fg = rho * g if np.any(pr.gravity) else None  # no body force without gravity
         self._f_grav = fg
         self._use_projection(
             PressureProjection(
                 self.V, self.Q, self.gdim, rho, fg, dxq, self.dt_c, self._bcs_u, self._bcs_p,
                 pr.correction, pr.incremental, scene.method.preconditioner, pr.rtol,
-                self.timer,
+                self.timer, force_in_projection=self.jump is not None and not pr.incremental,
             )
         )  # fmt: skip
+        if self.projection.force_in_projection:
+            fg = None  # the pressure step has the body force, the predictor none
         self.phi_n: Any = None
         if pr.two_phase:
             self._levelset_forms(dxq)
@@ -201,6 +215,8 @@ class EulerianFlow(FlowSolver):
             self.A_l = fem.assemble_matrix(self.a_l, [], self.A_l)
             if self.ls_solver is None:
                 self.ls_solver = fem.LinearSolver(self.A_l, "gmres", rtol=self.problem.rtol)
+                if self.jump is not None:  # start from phi^n: a fluid at rest keeps it exactly
+                    self.ls_solver.ksp.setInitialGuessNonzero(True)
             else:
                 self.ls_solver.set_operator(self.A_l)
             fem.assemble_vector(self.L_l, self.b_l)
@@ -214,6 +230,8 @@ class EulerianFlow(FlowSolver):
             with self.timer("reinit"):
                 self.redistance()
         self._update_phase()
+        if self.jump is not None:
+            self.jump.update(self.phi.x.array)
 
     def _predict(self, t: float, dt: float) -> None:
         with self.timer("assembly"):
