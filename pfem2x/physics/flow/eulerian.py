@@ -95,18 +95,19 @@ class EulerianFlow(FlowSolver):
             mu = compat.dolfinx.fem.Constant(mesh, sc(m1))
         self._rho = rho
         # Gravity with the full pressure. One phase: rho g. Two phases: the balanced
-        # force of pfem2x.physics.flow.balanced (rho g where a cell is in one phase, a
-        # jump force on the cells the interface crosses; a flat interface at rest stays
-        # at rest to round-off). (The interFoam-style p_rgh form, force -(g.x) grad rho
-        # with the smoothed rho, was tried: twice the spurious wall currents of rho g.)
+        # force of pfem2x.physics.flow.balanced (rho g plus a jump force on the cells
+        # next to the interface; a flat interface at rest stays at rest to round-off).
+        # (The interFoam-style p_rgh form, force -(g.x) grad rho with the smoothed rho,
+        # was tried: twice the spurious wall currents of rho g.)
         #: the balanced two-phase body force (None with one phase or without gravity)
         self.jump: JumpForce | None = None
         if pr.two_phase and np.any(pr.gravity):
+            # band: every cell the smoothed density varies on has all its nodes in it
             self.jump = JumpForce(
-                self.Q, self.coords, self.dofmap, self.n_owned, r1, r2, pr.gravity[: self.gdim]
+                self.Q, self.interface, r1, r2, pr.gravity[: self.gdim], self.eps + 2.0 * self.H
             )
             self.jump.update(self.phi.x.array)
-            fg = self.jump.force
+            fg = self.jump.force(rho, g)
         else:
             fg = rho * g if np.any(pr.gravity) else None  # no body force without gravity
         self._f_grav = fg
