@@ -18,6 +18,12 @@ One step:
    convective term (``method.supg``), semi-implicit (Oseen) linearisation;
 4. pressure increment and 5. correction: :mod:`pfem2x.physics.flow.projection`.
 
+Two phases with gravity: :math:`\rho g` is the balanced force of
+:mod:`pfem2x.physics.flow.balanced` (built on the zero iso-line of
+:math:`\phi`), in the predictor with ``flow.pressure_step = "increment"`` and
+in the pressure step with ``"total"``; the level-set solve starts from
+:math:`\phi^n`. A flat interface inside cells stays at rest to solver tolerance.
+
 Equal-order P1/P1 is stabilised only by the splitting (the pressure Laplacian
 of step 4 acts like a PSPG term of size :math:`\Delta t`); no extra pressure
 stabilisation is added.

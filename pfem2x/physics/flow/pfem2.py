@@ -50,6 +50,15 @@ motion alone (no convective term is ever assembled). One step
    ``phase`` from a fit of their neighbours (the phase is then rounded back
    to 0/1, so it stays sharp).
 
+Two phases with gravity: :math:`\rho g` is replaced everywhere (source :math:`a`,
+pressure step) by the balanced force of :mod:`pfem2x.physics.flow.balanced`,
+built on the zero iso-line of the particles' signed distance ``dist``
+(set from the region at the start, carried like ``phase``, projected to P1
+with the linear-exact fit, so a flat layer gives a flat iso-line): a flat
+interface inside cells stays at rest to solver tolerance. With
+``flow.pressure_step = "total"`` the force is part of the pressure step and
+the particles get no explicit source.
+
 ``flow.extra_pass = true`` repeats steps 1–4 once from the start-of-step
 particles with :math:`\theta = 1/2` in eq. 2.10 (positions with the mean
 of :math:`u^n` and the first pass's :math:`u^{n+1}`) and the source
