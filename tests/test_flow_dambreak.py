@@ -88,14 +88,15 @@ def test_velocity_correction_keeps_the_water(shared_tmp):
     """``flow.correction``: the rho-weighted (momentum) correction loses the water.
 
     Small variant (60 x 30, Courant 5, T = 3.33). With the pressure equation's
-    own 1/rho in the correction the water volume stays within 2 % (1.3 %
+    own 1/rho in the correction the water volume stays within 2 % (1.0 %
     measured); with the rho-weighted lumped mass (pfem2x <= 0.2) the water
-    particles crowd into the interface cells and 25 % of the volume is lost.
+    particles crowd into the interface cells and 7.5 % of the volume is lost
+    (25 % with gravity as rho g, before the balanced force).
     """
     vel = run(shared_tmp / "v").summary["metrics"]
     mom = run(shared_tmp / "m", "flow.correction=momentum").summary["metrics"]
     assert vel["volume_change_max_water"] < 0.02
-    assert mom["volume_change_max_water"] > 0.10
+    assert mom["volume_change_max_water"] > max(0.05, 5.0 * vel["volume_change_max_water"])
 
 
 def test_level_set_at_courant5_holds_but_drifts(shared_tmp):

@@ -18,6 +18,12 @@ One step:
    convective term (``method.supg``), semi-implicit (Oseen) linearisation;
 4. pressure increment and 5. correction: :mod:`pfem2x.physics.flow.projection`.
 
+Two phases with gravity: :math:`\rho g` is the balanced force of
+:mod:`pfem2x.physics.flow.balanced` (built on the zero iso-line of
+:math:`\phi`), in the predictor with ``flow.pressure_step = "increment"`` and
+in the pressure step with ``"total"``; the level-set solve starts from
+:math:`\phi^n`. A flat interface inside cells stays at rest to solver tolerance.
+
 Equal-order P1/P1 is stabilised only by the splitting (the pressure Laplacian
 of step 4 acts like a PSPG term of size :math:`\Delta t`); no extra pressure
 stabilisation is added.
@@ -53,6 +59,7 @@ import ufl
 from pfem2x import compat, fem
 from pfem2x.compat import PETSc
 from pfem2x.mesh import Domain
+from pfem2x.physics.flow.balanced import JumpForce
 from pfem2x.physics.flow.interface import InterfaceGeometry
 from pfem2x.physics.flow.problem import FlowSolver
 from pfem2x.physics.flow.projection import PressureProjection
@@ -93,18 +100,32 @@ class EulerianFlow(FlowSolver):
             rho = compat.dolfinx.fem.Constant(mesh, sc(r1))
             mu = compat.dolfinx.fem.Constant(mesh, sc(m1))
         self._rho = rho
-        # Gravity as rho g with the full pressure. (The interFoam-style p_rgh form,
-        # force -(g.x) grad rho, was tried: twice the spurious wall currents of a
-        # flat interface at rest on P1/P1, so it is not used.)
-        fg = rho * g if np.any(pr.gravity) else None  # no body force without gravity
+        # Gravity with the full pressure. One phase: rho g. Two phases: the balanced
+        # force of pfem2x.physics.flow.balanced (rho g plus a jump force on the cells
+        # next to the interface; a flat interface at rest stays at rest to round-off).
+        # (The interFoam-style p_rgh form, force -(g.x) grad rho with the smoothed rho,
+        # was tried: twice the spurious wall currents of rho g.)
+        #: the balanced two-phase body force (None with one phase or without gravity)
+        self.jump: JumpForce | None = None
+        if pr.two_phase and np.any(pr.gravity):
+            # band: every cell the smoothed density varies on has all its nodes in it
+            self.jump = JumpForce(
+                self.Q, self.interface, r1, r2, pr.gravity[: self.gdim], self.eps + 2.0 * self.H
+            )
+            self.jump.update(self.phi.x.array)
+            fg = self.jump.force(rho, g)
+        else:
+            fg = rho * g if np.any(pr.gravity) else None  # no body force without gravity
         self._f_grav = fg
         self._use_projection(
             PressureProjection(
                 self.V, self.Q, self.gdim, rho, fg, dxq, self.dt_c, self._bcs_u, self._bcs_p,
                 pr.correction, pr.incremental, scene.method.preconditioner, pr.rtol,
-                self.timer,
+                self.timer, force_in_projection=self.jump is not None and not pr.incremental,
             )
         )  # fmt: skip
+        if self.projection.force_in_projection:
+            fg = None  # the pressure step has the body force, the predictor none
         self.phi_n: Any = None
         if pr.two_phase:
             self._levelset_forms(dxq)
@@ -201,6 +222,8 @@ class EulerianFlow(FlowSolver):
             self.A_l = fem.assemble_matrix(self.a_l, [], self.A_l)
             if self.ls_solver is None:
                 self.ls_solver = fem.LinearSolver(self.A_l, "gmres", rtol=self.problem.rtol)
+                if self.jump is not None:  # start from phi^n: a fluid at rest keeps it exactly
+                    self.ls_solver.ksp.setInitialGuessNonzero(True)
             else:
                 self.ls_solver.set_operator(self.A_l)
             fem.assemble_vector(self.L_l, self.b_l)
@@ -214,6 +237,8 @@ class EulerianFlow(FlowSolver):
             with self.timer("reinit"):
                 self.redistance()
         self._update_phase()
+        if self.jump is not None:
+            self.jump.update(self.phi.x.array)
 
     def _predict(self, t: float, dt: float) -> None:
         with self.timer("assembly"):

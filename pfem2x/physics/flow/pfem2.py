@@ -50,6 +50,15 @@ motion alone (no convective term is ever assembled). One step
    ``phase`` from a fit of their neighbours (the phase is then rounded back
    to 0/1, so it stays sharp).
 
+Two phases with gravity: :math:`\rho g` is replaced everywhere (source :math:`a`,
+pressure step) by the balanced force of :mod:`pfem2x.physics.flow.balanced`,
+built on the zero iso-line of the particles' signed distance ``dist``
+(set from the region at the start, carried like ``phase``, projected to P1
+with the linear-exact fit, so a flat layer gives a flat iso-line): a flat
+interface inside cells stays at rest to solver tolerance. With
+``flow.pressure_step = "total"`` the force is part of the pressure step and
+the particles get no explicit source.
+
 ``flow.extra_pass = true`` repeats steps 1–4 once from the start-of-step
 particles with :math:`\theta = 1/2` in eq. 2.10 (positions with the mean
 of :math:`u^n` and the first pass's :math:`u^{n+1}`) and the source
@@ -109,6 +118,7 @@ from pfem2x import compat, fem
 from pfem2x import particles as P
 from pfem2x.compat import MPI, PETSc
 from pfem2x.mesh import Domain
+from pfem2x.physics.flow.balanced import JumpForce
 from pfem2x.physics.flow.problem import FlowSolver
 from pfem2x.physics.flow.projection import PressureProjection
 from pfem2x.scene import Scene
@@ -159,6 +169,16 @@ class LagrangianFlow(FlowSolver):
         self.du = compat.dolfinx.fem.Function(self.V)
         self._u_old = compat.dolfinx.fem.Function(self.V)  # u^n for the extra pass
         self.force_heavy: Any = None  # flow.light_source = "gravity": the heavy phase's a
+        #: two phases with gravity: the balanced body force and the level set it is
+        #: built from (the P1 projection of the particles' signed distance)
+        self.jump: JumpForce | None = None
+        self.dist: Any = None
+        if pr.two_phase and np.any(pr.gravity):
+            self.jump = JumpForce(
+                self.Q, self.interface, pr.phases[0][1], pr.phases[1][1],
+                pr.gravity[: self.gdim], 2.0 * self.H,
+            )  # fmt: skip
+            self.dist = compat.dolfinx.fem.Function(self.Q, name="dist")
         self._seed_particles()
         self._update_phase_fields()
         self._forms()
@@ -191,6 +211,10 @@ class LagrangianFlow(FlowSolver):
             x3 = np.zeros((len(x), 3))
             x3[:, : self.gdim] = x
             self.cloud_.field("phase")[:] = np.asarray(region(x3, 0.0), dtype=bool)
+            if self.jump is not None:
+                # the signed distance to the region's boundary (> 0 inside), P1 at the start
+                self.dist.x.array[:] = self.interface.signed_distance(region)
+                P.interpolate(self.cloud_, "dist", self.dist)
         self.last_population = P.PopulationStats()
         self.step_count = 0
 
@@ -201,11 +225,18 @@ class LagrangianFlow(FlowSolver):
         dx = ufl.dx(domain=mesh)
         grav = bool(np.any(pr.gravity))  # without gravity no form has a body force
         g = compat.dolfinx.fem.Constant(mesh, np.asarray(pr.gravity, dtype=PETSc.ScalarType))
+        # gravity: rho g with one phase, the balanced force with two
+        f_body = (
+            (self.jump.force(self.rho, g) if self.jump is not None else self.rho * g)
+            if grav
+            else None
+        )
         self._use_projection(
             PressureProjection(
-                self.V, self.Q, self.gdim, self.rho, self.rho * g if grav else None, dx,
+                self.V, self.Q, self.gdim, self.rho, f_body, dx,
                 self.dt_c, self._bcs_u, self._bcs_p, pr.correction, pr.incremental,
                 self.scene.method.preconditioner, pr.rtol, self.timer,
+                force_in_projection=self.jump is not None and not pr.incremental,
             )
         )  # fmt: skip
         v, w = ufl.TrialFunction(self.V), ufl.TestFunction(self.V)
@@ -219,14 +250,16 @@ class LagrangianFlow(FlowSolver):
         self.A_m: Any = None
         self.m_solver: fem.LinearSolver | None = None
         if not self.gravity_only:  # total pressure: the particles get g only, no source form
-            a_rho = self.rho * g - ufl.grad(self.p) if grav else -ufl.grad(self.p)
+            a_rho = f_body - ufl.grad(self.p) if grav else -ufl.grad(self.p)
             self.L_f = compat.form(ufl.dot(a_rho, w) * dx)
             self.b_f = compat.create_vector(self.L_f)
         if self.light_gravity_only:
             # heavy particles: a_heavy = g - M^-1 int grad(p).w / rho_heavy (lumped M)
             self.force_heavy = compat.dolfinx.fem.Function(self.V)
             a_h = -ufl.grad(self.p) / pr.phases[0][1]
-            self.L_fh = compat.form(ufl.dot(g + a_h if grav else a_h, w) * dx)
+            if grav:  # (balanced force: the heavy phase's b / rho_heavy is g in its bulk)
+                a_h = a_h + (f_body / pr.phases[0][1] if self.jump is not None else g)
+            self.L_fh = compat.form(ufl.dot(a_h, w) * dx)
             self.b_fh = compat.create_vector(self.L_fh)
         self.b_m = compat.create_vector(self.projection.L_mass)
         self._diag = compat.create_vector(self.projection.L_mass)
@@ -242,6 +275,10 @@ class LagrangianFlow(FlowSolver):
         else:
             P.project(c, "phase", self.phase, method="average", empty="neighbours")
             self.phi.x.array[:] = self.phase.x.array - 0.5
+            if self.jump is not None:
+                # linear-exact fit: a flat layer's distance gives a flat zero iso-line
+                P.project(c, "dist", self.dist, method="linear", empty="neighbours")
+                self.jump.update(self.dist.x.array)
             cells = c.cells
             n = np.bincount(cells, minlength=self.n_owned)[: self.n_owned]
             heavy = np.bincount(cells, weights=c.field("phase"), minlength=self.n_owned)
@@ -322,7 +359,8 @@ class LagrangianFlow(FlowSolver):
         """
         c = self.cloud_
         if self.gravity_only:
-            if np.any(self.problem.gravity):
+            # (balanced force: the pressure step has all of b - grad p, no particle source)
+            if np.any(self.problem.gravity) and self.jump is None:
                 up = c.field("u")
                 up += h * self.problem.gravity
             return
@@ -465,6 +503,8 @@ class LagrangianFlow(FlowSolver):
             fb = {"u": self.u}
             if self.problem.two_phase:
                 fb["phase"] = self.phase
+            if self.jump is not None:
+                fb["dist"] = self.dist
             self.last_population = P.rebalance(
                 c, nmin, nmax, seed=meth.seed + 7919 * (self.step_count + 1), fallback=fb
             )

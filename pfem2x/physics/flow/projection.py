@@ -11,7 +11,16 @@ Given the predicted velocity :math:`u^*` (:attr:`PressureProjection.u_star`):
   (``"momentum"``, :math:`M_\rho` the :math:`\rho`-weighted lumped mass);
   :math:`p \mathrel{+}= \delta p` (``flow.pressure_step = "increment"``) or
   :math:`p = \delta p` (``"total"``);
-- hydrostatic start :math:`\nabla\cdot(\rho^{-1}(\nabla p - \rho g)) = 0`.
+- hydrostatic start :math:`\nabla\cdot(\rho^{-1}(\nabla p - f)) = 0` with the body
+  force :math:`f` (:math:`\rho g`, or the balanced force of two phases,
+  :mod:`pfem2x.physics.flow.balanced`);
+- ``force_in_projection`` (the balanced force with ``flow.pressure_step =
+  "total"``): the body force enters the pressure step in the same form as the
+  pressure gradient, :math:`\int\rho^{-1}(\nabla p - f)\cdot\nabla r =
+  -\Delta t^{-1}\int(\nabla\cdot u^*)\,r` and
+  :math:`u = u^* - \Delta t\,M^{-1}\int\rho^{-1}(\nabla p - f)\cdot w`
+  (the predictor has neither), so a force that is a discrete gradient is
+  balanced by the pressure exactly.
 """
 
 from __future__ import annotations
@@ -55,6 +64,9 @@ class PressureProjection:
         Of the pressure solve (``method.preconditioner``, ``flow.rtol``).
     timer
         ``timer("solve")`` times the pressure solves (the solver's :meth:`Solver.timer`).
+    force_in_projection
+        The body force ``f_body`` enters the pressure equation and the correction
+        (with ``incremental = False``; see the module docstring).
     """
 
     def __init__(
@@ -73,6 +85,7 @@ class PressureProjection:
         preconditioner: str,
         rtol: float,
         timer: Callable[[str], AbstractContextManager[None]],
+        force_in_projection: bool = False,
     ):
         self.bcs_u, self.bcs_p = bcs_u, bcs_p
         self.correction = correction
@@ -85,7 +98,12 @@ class PressureProjection:
         q, r = ufl.TrialFunction(Q), ufl.TestFunction(Q)
         w = ufl.TestFunction(V)
         self.a_p = compat.form((1.0 / rho) * ufl.dot(ufl.grad(q), ufl.grad(r)) * dxq)
-        self.L_p = compat.form(-(1.0 / dt_c) * ufl.div(self.u_star) * r * dxq)
+        L_p = -(1.0 / dt_c) * ufl.div(self.u_star) * r * dxq
+        #: the body force is part of the pressure step (balanced force, total pressure)
+        self.force_in_projection = force_in_projection and f_body is not None
+        if self.force_in_projection:
+            L_p = L_p + (1.0 / rho) * ufl.dot(f_body, ufl.grad(r)) * dxq
+        self.L_p = compat.form(L_p)
         #: the body force (UFL) in the forms; None without effects.gravity
         self.body_force = f_body
         self.L_p0 = (
@@ -104,11 +122,14 @@ class PressureProjection:
         #: the plain lumped mass M (assembled once)
         self.b_lumped = compat.create_vector(self.L_mass)
         fem.assemble_vector(compat.form(ufl.dot(w, ones) * dxq), self.b_lumped)
+        grad_dp = ufl.grad(self.dp)
+        if self.force_in_projection:
+            grad_dp = grad_dp - f_body
         if correction == "velocity":
             # u -= dt M^-1 int rho^-1 grad(dp).w: the pressure equation's own 1/rho
-            self.L_c = compat.form(ufl.dot(ufl.grad(self.dp), w) / rho * dxq)
+            self.L_c = compat.form(ufl.dot(grad_dp, w) / rho * dxq)
         else:
-            self.L_c = compat.form(ufl.dot(ufl.grad(self.dp), w) * dxq)
+            self.L_c = compat.form(ufl.dot(grad_dp, w) * dxq)
         self.b_c = compat.create_vector(self.L_c)
         #: iteration counts of the last solves, by equation
         self.iterations: dict[str, int] = {}
