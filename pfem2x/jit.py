@@ -163,9 +163,14 @@ def exercise_particles() -> None:
     P.locate_points(cloud.pmesh, cloud.x[:4].copy())
     P.rebalance(cloud, 4, 8, seed=2, fallback={"T": T})
     P.rebalance(cloud, 10, 12, seed=3, fallback={"u": u, "phase": T})
-    keep = np.zeros(cloud.n, dtype=bool)
-    keep[::3] = True
-    cloud.remove(keep)
+    cloud.remove(cloud.x[:, 0] > 0.5)  # empty cells: nodes that only neighbours fill
+    for method in ("linear", "average"):
+        P.project(cloud, "T", T_hat, method=method, empty="neighbours")
+        P.project(cloud, "u", u_hat, method=method, empty="neighbours")
+    P.project(cloud, "_mom", mom, method="average", empty="neighbours")
+    drop = np.zeros(cloud.n, dtype=bool)
+    drop[::3] = True
+    cloud.remove(drop)
     P.rebalance(cloud, 6, 0, seed=4, fallback={"T": T, "u": u})
 
 

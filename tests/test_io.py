@@ -47,12 +47,13 @@ def test_interface_polylines_of_a_run(shared_tmp):
     assert res.status == "ok"
     files = sorted((shared_tmp / "rt" / "interface").glob("interface_t*.csv"))
     assert len(files) == 2  # start and end (output.every = 0 in the small variant)
-    if MPI.COMM_WORLD.rank == 0:
-        lines = read_interface(files[-1])
-        # one interface from wall to wall, gathered across ranks into a single polyline
-        assert len(lines) == 1
-        xs = lines[0][:, 0]
-        assert xs.min() == pytest.approx(-0.5) and xs.max() == pytest.approx(0.5)
+    # read on rank 0 and checked on every rank: a rank must not fail alone before a collective
+    comm = MPI.COMM_WORLD
+    lines = comm.bcast(read_interface(files[-1]) if comm.rank == 0 else None, root=0)
+    # one interface from wall to wall, gathered across ranks into a single polyline
+    assert len(lines) == 1
+    xs = lines[0][:, 0]
+    assert xs.min() == pytest.approx(-0.5) and xs.max() == pytest.approx(0.5)
     # also the writer alone, with an empty rank
     segs = np.array([[[0.0, 0.0], [1.0, 0.0]]]) if MPI.COMM_WORLD.rank == 0 else np.zeros((0, 2, 2))
     write_interface(MPI.COMM_WORLD, shared_tmp / "one.csv", segs)
