@@ -174,7 +174,7 @@ def exercise_particles() -> None:
     P.rebalance(cloud, 6, 0, seed=4, fallback={"T": T, "u": u})
 
 
-def warm_up(say: Callable[[str], Any] | None = None) -> float:
+def warm_up(say: Callable[[str], Any] | None = None, comm: Any = None) -> float:
     """Compile (cold cache) or load (warm cache) every particle kernel; announce a compile.
 
     Parameters
@@ -183,11 +183,18 @@ def warm_up(say: Callable[[str], Any] | None = None) -> float:
         Called with :data:`MESSAGE` before compiling when the cache is cold
         (or once the warm-up has taken :data:`LATE_NOTICE` seconds); ``None``
         keeps quiet. Pass a function that prints on rank 0 only.
+    comm:
+        An MPI communicator (collective then): rank 0 compiles first and the
+        other ranks load its cache files afterwards. Several processes that
+        compile the same kernels at once write the same cache files, and numba
+        does not lock them (a process may load another's code for its own
+        signature). ``None``: this process alone.
 
     Returns
     -------
     float
-        Wall seconds spent compiling or loading the kernels.
+        Wall seconds spent compiling or loading the kernels (on this rank,
+        waiting for rank 0 included).
     """
     t0 = time.perf_counter()
     told = threading.Event()
@@ -197,19 +204,36 @@ def warm_up(say: Callable[[str], Any] | None = None) -> float:
             told.set()
             say(MESSAGE)
 
-    timer = None
-    if is_cold():
-        tell()
-    elif say is not None:
-        timer = threading.Timer(LATE_NOTICE, tell)
-        timer.daemon = True
-        timer.start()
-    try:
+    def run() -> None:
+        timer = None
+        if is_cold():
+            tell()
+        elif say is not None:
+            timer = threading.Timer(LATE_NOTICE, tell)
+            timer.daemon = True
+            timer.start()
+        try:
+            exercise_particles()
+        finally:
+            if timer is not None:
+                timer.cancel()
+        _mark_warm()
+
+    if comm is None or comm.size == 1:
+        run()
+        return time.perf_counter() - t0
+    failed: BaseException | None = None
+    if comm.rank == 0:
+        try:
+            run()
+        except Exception as exc:  # re-raised on every rank below, after the collective
+            failed = exc
+    from pfem2x.compat import MPI  # noqa: PLC0415
+
+    if comm.allreduce(failed is not None, op=MPI.LOR):
+        raise RuntimeError(f"compiling the particle kernels failed on rank 0: {failed}") from failed
+    if comm.rank != 0:
         exercise_particles()
-    finally:
-        if timer is not None:
-            timer.cancel()
-    _mark_warm()
     return time.perf_counter() - t0
 
 

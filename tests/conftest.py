@@ -15,6 +15,10 @@ collective that the failed rank will never enter, so it prints
 ``FAILED <test> on rank <r>`` with the traceback to stderr and aborts the whole
 MPI run (``MPI_Abort``). A rank on which the test passed waits at most
 ``PFEM2X_MPI_PASS_WAIT`` seconds (default 900) before doing the same.
+
+Before the tests, rank 0 compiles the particle kernels (or loads them from numba's
+cache) and only then do the other ranks load them (:func:`pfem2x.jit.warm_up`);
+``PFEM2X_TEST_WARMUP=0`` skips this.
 """
 
 import os
@@ -27,6 +31,7 @@ import time
 import numpy as np
 import pytest
 
+from pfem2x import jit
 from pfem2x.compat import MPI
 
 _OUTCOME_COMM = None  # a duplicate of COMM_WORLD for the outcome agreement (size > 1)
@@ -34,10 +39,20 @@ _CODE = {"passed": 0, "skipped": 1, "failed": 2}
 
 
 def pytest_configure(config):
-    """Duplicate the world communicator once under MPI (collective: every rank runs it)."""
+    """Under MPI (collective: every rank runs it): the outcome communicator, and the
+    particle kernels compiled by rank 0 before the other ranks load them (two ranks that
+    compile the same kernel at once race on numba's cache files)."""
     global _OUTCOME_COMM
-    if MPI.COMM_WORLD.size > 1 and _OUTCOME_COMM is None:
-        _OUTCOME_COMM = MPI.COMM_WORLD.Dup()
+    comm = MPI.COMM_WORLD
+    if comm.size > 1 and _OUTCOME_COMM is None:
+        _OUTCOME_COMM = comm.Dup()
+        if os.environ.get("PFEM2X_TEST_WARMUP", "1") != "0":
+
+            def say(msg: str) -> None:
+                if comm.rank == 0:
+                    print(msg, file=sys.stderr, flush=True)
+
+            jit.warm_up(say, comm=comm)
 
 
 def _wait_limit(failed: bool) -> float:

@@ -84,6 +84,7 @@ def _run_child(tmp_path: Path, limit: float) -> tuple[int, str, float]:
     }
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
     env["PYTHONUNBUFFERED"] = "1"  # MPI_Abort does not flush Python's buffers
+    env["PFEM2X_TEST_WARMUP"] = "0"  # no particle kernels here: time the harness alone
     env.pop("PFEM2X_MPI_FAIL_WAIT", None)
     env.pop("PFEM2X_MPI_PASS_WAIT", None)
     cmd = launcher + ["-n", "2", sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider"]
