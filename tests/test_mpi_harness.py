@@ -96,7 +96,7 @@ def _run_child(tmp_path: Path, limit: float) -> tuple[int, str, float]:
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
-        start_new_session=True,
+        process_group=0,  # its own group: killed whole on a timeout
     )
     try:
         out, _ = proc.communicate(timeout=limit)
