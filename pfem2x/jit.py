@@ -12,7 +12,7 @@ set-up and reports the seconds it took as ``compile_seconds``.
 The cache is cold when the marker :data:`MARKER` that a completed warm-up leaves
 next to the cache files is missing or older than ``_kernels.py``, or when fewer
 cache index files are there than the warm-up left. If the check is wrong, a
-warm-up that runs longer than a few seconds still announces itself.
+warm-up that runs longer than :data:`LATE_NOTICE` seconds still announces itself.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ _TAG = f"py{sys.version_info[0]}{sys.version_info[1]}"
 #: Left next to the cache files by a completed warm-up: the number of index files.
 MARKER = f"_kernels.warm.{_TAG}"
 #: Seconds after which a warm-up that the cache check took for warm announces itself.
-LATE_NOTICE = 3.0
+LATE_NOTICE = 10.0
 
 
 def cache_dir() -> Path:
