@@ -240,12 +240,15 @@ def warm_up(say: Callable[[str], Any] | None = None, comm: Any = None) -> float:
 def main(argv: list[str] | None = None) -> int:
     """``python -m pfem2x.jit``: warm the kernel cache (``make setup`` runs it)."""
     ap = argparse.ArgumentParser(prog="python -m pfem2x.jit", description=__doc__.split("\n")[0])
-    ap.add_argument("--check", action="store_true", help="only say whether the cache is cold")
-    ap.add_argument("--if-cold", action="store_true", help="warm up only when the cache is cold")
+    ap.add_argument("--check", action="store_true", help="only say whether the cache is cold (exit 1)")
+    ap.add_argument("--if-cold", action="store_true", help="warm up only when the cache is cold (else silent)")
     args = ap.parse_args(argv)
-    if args.check or (args.if_cold and not is_cold()):
-        print(f"pfem2x: particle kernel cache {'cold' if is_cold() else 'warm'} ({cache_dir()})")
-        return 1 if args.check and is_cold() else 0
+    cold = is_cold()
+    if args.check:
+        print(f"pfem2x: particle kernel cache {'cold' if cold else 'warm'} ({cache_dir()})")
+        return 1 if cold else 0
+    if args.if_cold and not cold:
+        return 0
 
     def say(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
