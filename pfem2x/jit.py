@@ -240,8 +240,12 @@ def warm_up(say: Callable[[str], Any] | None = None, comm: Any = None) -> float:
 def main(argv: list[str] | None = None) -> int:
     """``python -m pfem2x.jit``: warm the kernel cache (``make setup`` runs it)."""
     ap = argparse.ArgumentParser(prog="python -m pfem2x.jit", description=__doc__.split("\n")[0])
-    ap.add_argument("--check", action="store_true", help="only say whether the cache is cold (exit 1)")
-    ap.add_argument("--if-cold", action="store_true", help="warm up only when the cache is cold (else silent)")
+    ap.add_argument(
+        "--check", action="store_true", help="only say whether the cache is cold (exit 1)"
+    )
+    ap.add_argument(
+        "--if-cold", action="store_true", help="warm up only when the cache is cold (else silent)"
+    )
     args = ap.parse_args(argv)
     cold = is_cold()
     if args.check:
