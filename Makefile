@@ -20,9 +20,12 @@ help:
 	@echo "make test      set up and run lint + the test suite (serial and mpirun -n $(NP))"
 	@echo "make test-011  the same on DOLFINx 0.11 (PyPI wheel, Python 3.12 venv at $(VENV011))"
 
+# setup also compiles the particle kernels into numba's cache (about a minute once, after
+# install or a change of the kernels; otherwise a file-time check of a fraction of a second).
 setup: $(VENV)/.stamp
+	@$(PY) -m pfem2x.jit --if-cold
 
-$(VENV)/.stamp: pyproject.toml .ci/setup-system.sh
+$(VENV)/.stamp: pyproject.toml .ci/setup-system.sh .ci/setup-venv.sh
 	bash .ci/setup-system.sh
 	bash .ci/setup-venv.sh $(VENV)
 	touch $@
@@ -43,6 +46,7 @@ test-mpi: setup
 test: lint test-serial test-mpi
 
 setup-011: $(VENV011)/.stamp
+	@$(PY011) -m pfem2x.jit --if-cold
 
 $(VENV011)/.stamp: pyproject.toml .ci/setup-venv-011.sh
 	bash .ci/setup-system.sh

@@ -366,7 +366,8 @@ def summary(
 
     ``run`` holds the loop's figures: ``status``, ``message``, ``history``,
     ``dts``, ``step_wall``, ``t``, ``dt``, ``courant_max``, ``adaptive``,
-    ``wall``, ``cpu`` (this rank), ``setup_seconds``, ``startup_seconds``.
+    ``wall``, ``cpu`` (this rank), ``setup_seconds``, ``startup_seconds``,
+    ``compile_seconds``.
     """
     from pfem2x import compat, fem  # noqa: PLC0415
     from pfem2x.compat import MPI  # noqa: PLC0415
@@ -393,6 +394,7 @@ def summary(
         "wall_seconds": float(run["wall"]),
         "setup_seconds": float(run["setup_seconds"]),
         "startup_seconds": float(run["startup_seconds"]),
+        "compile_seconds": float(run["compile_seconds"]),
         "cpu_seconds": float(comm.allreduce(run["cpu"], op=MPI.SUM)),
         "step_wall_median": float(np.median(step_wall)) if step_wall else 0.0,
         "timings": timings,

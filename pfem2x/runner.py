@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pfem2x import fem, physics
+from pfem2x import fem, jit, physics
 from pfem2x import output as pout
 from pfem2x.checkpoint import (
     CHECKPOINT,
@@ -143,8 +143,8 @@ class Simulation:
     -----
     :meth:`resume` continues an interrupted run from its checkpoint.
     ``on_step(sim, step, t)``, if set, is called after every completed step.
-    :meth:`warm_up`, called at the end of :meth:`setup`, is a hook for work to
-    be done before the first step (it does nothing here).
+    :meth:`setup` of a particle frame first loads (or, on a cold cache,
+    compiles and announces) the numba kernels: ``compile_seconds`` in the summary.
     """
 
     def __init__(
@@ -223,16 +223,15 @@ class Simulation:
         wall0 = time.perf_counter()
         self.domain = build_domain(self.scene, self.comm)
         fem.reset_counters()
+        self.compile_seconds = 0.0
+        if self.scene.frame == "lagrangian":  # the particle frames run numba kernels
+            self.compile_seconds = jit.warm_up(self.say, comm=self.comm)
         self.solver = make_solver(self.scene, self.domain)
         self.time = make_time_control(self.scene, self.domain, self.solver)
         self.dt, self.steps = self.time.dt, self.time.steps
-        self.warm_up()
         if self._resume is None:
             prepare_output(self.comm, self.out, self.overwrite)
         self.setup_seconds = time.perf_counter() - wall0
-
-    def warm_up(self) -> None:
-        """Work before the first step (a hook; nothing here)."""
 
     # -- signals ----------------------------------------------------------------
     def _on_signal(self, signum: int, frame: Any) -> None:
@@ -416,6 +415,7 @@ class Simulation:
             "cpu": lp.cpu_before + time.process_time() - self._cpu0,
             "setup_seconds": self.setup_seconds,
             "startup_seconds": self.startup_seconds,
+            "compile_seconds": self.comm.allreduce(self.compile_seconds, op=MPI.MAX),
         }
         summary = pout.summary(self.scene, self.comm, self.domain, self.solver, run)
         if self._resume is not None:

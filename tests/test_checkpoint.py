@@ -89,8 +89,8 @@ def test_resume_matches_uninterrupted(shared_tmp, case):
     full = Simulation(make(), shared_tmp / "full", quiet=True)
     ra = full.run()
     interrupted_run(make(), shared_tmp / "run", at)
-    if comm.rank == 0:
-        assert (shared_tmp / "run" / "checkpoint" / "meta.json").is_file()
+    meta = shared_tmp / "run" / "checkpoint" / "meta.json"
+    assert comm.bcast(meta.is_file() if comm.rank == 0 else None, root=0)  # fail on all ranks
     resumed = Simulation.resume(shared_tmp / "run", quiet=True)
     rb = resumed.run()
     assert rb.status == "ok" and rb.summary["resumed_at_step"] == at

@@ -50,9 +50,13 @@ def _serial_reference(path: Path, out: Path) -> str | None:
     }
     env.update(PFEM2X_DEMO_SMALL="1", PFEM2X_DEMO_OUT=str(out), MPLBACKEND="Agg")
     out.mkdir(parents=True, exist_ok=True)
-    r = subprocess.run(
-        [sys.executable, str(path)], env=env, cwd=out, capture_output=True, text=True, timeout=900
-    )
+    try:
+        r = subprocess.run(
+            [sys.executable, str(path)], env=env, cwd=out, capture_output=True, text=True,
+            timeout=900,
+        )  # fmt: skip
+    except subprocess.TimeoutExpired as exc:  # returned, so that every rank fails with it
+        return f"serial run timed out after {exc.timeout} s: {(exc.stderr or b'')[-2000:]!r}"
     return None if r.returncode == 0 else f"serial run failed ({r.returncode}): {r.stderr[-2000:]}"
 
 

@@ -45,14 +45,19 @@ def test_interface_polylines_of_a_run(shared_tmp):
     sc = load_scene("rayleigh-taylor", ["output.png=false", "output.particles=false"], "small")
     res = Simulation(sc, shared_tmp / "rt", quiet=True).run()
     assert res.status == "ok"
-    files = sorted((shared_tmp / "rt" / "interface").glob("interface_t*.csv"))
-    assert len(files) == 2  # start and end (output.every = 0 in the small variant)
-    if MPI.COMM_WORLD.rank == 0:
-        lines = read_interface(files[-1])
-        # one interface from wall to wall, gathered across ranks into a single polyline
-        assert len(lines) == 1
-        xs = lines[0][:, 0]
-        assert xs.min() == pytest.approx(-0.5) and xs.max() == pytest.approx(0.5)
+    # read on rank 0 (which wrote them), checked on every rank: a rank must not fail alone
+    # before the collectives below
+    comm = MPI.COMM_WORLD
+    found = None
+    if comm.rank == 0:
+        files = sorted((shared_tmp / "rt" / "interface").glob("interface_t*.csv"))
+        found = (len(files), read_interface(files[-1]) if files else [])
+    n_files, lines = comm.bcast(found, root=0)
+    assert n_files == 2  # start and end (output.every = 0 in the small variant)
+    # one interface from wall to wall, gathered across ranks into a single polyline
+    assert len(lines) == 1
+    xs = lines[0][:, 0]
+    assert xs.min() == pytest.approx(-0.5) and xs.max() == pytest.approx(0.5)
     # also the writer alone, with an empty rank
     segs = np.array([[[0.0, 0.0], [1.0, 0.0]]]) if MPI.COMM_WORLD.rank == 0 else np.zeros((0, 2, 2))
     write_interface(MPI.COMM_WORLD, shared_tmp / "one.csv", segs)

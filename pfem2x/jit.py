@@ -1,0 +1,266 @@
+"""The particle kernels' numba compilation: warmed once at set-up, announced when cold.
+
+The kernels of :mod:`pfem2x.particles._kernels` are compiled by numba on first
+use (about a minute on a small machine) and cached on disk next to the source
+(``pfem2x/particles/__pycache__``, or under ``NUMBA_CACHE_DIR``); later runs
+load them in about a second. :func:`warm_up` compiles or loads every kernel a
+scene uses by running the particle layer once on a tiny mesh, and says so first
+when the cache is cold. ``make setup`` runs it (``python -m pfem2x.jit``), so a
+first ``pfem2x run`` after installing starts at once; the runner calls it during
+set-up and reports the seconds it took as ``compile_seconds``.
+
+The cache is cold when the marker :data:`MARKER` that a completed warm-up leaves
+next to the cache files is missing or older than ``_kernels.py``, or when fewer
+cache index files are there than the warm-up left. If the check is wrong, a
+warm-up that runs longer than :data:`LATE_NOTICE` seconds still announces itself.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+#: What a run prints (rank 0, not with ``--quiet``) while the kernels compile.
+MESSAGE = "compiling particle kernels (first run after install, about a minute)..."
+
+KERNELS = Path(__file__).resolve().parent / "particles" / "_kernels.py"
+_TAG = f"py{sys.version_info[0]}{sys.version_info[1]}"
+#: Left next to the cache files by a completed warm-up: the number of index files.
+MARKER = f"_kernels.warm.{_TAG}"
+#: Seconds after which a warm-up that the cache check took for warm announces itself.
+LATE_NOTICE = 10.0
+
+
+def cache_dir() -> Path:
+    """The folder that holds the kernels' numba cache files (numba's own choice).
+
+    Returns
+    -------
+    Path
+        Below ``NUMBA_CACHE_DIR`` when that is set; else
+        ``pfem2x/particles/__pycache__`` when it is writable (a clone or an
+        editable install); else below the user's cache folder.
+    """
+    src = KERNELS.parent
+    # numba's name for a source folder in a cache folder of its own
+    sub = f"{src.name}_{hashlib.sha1(str(src).encode()).hexdigest()}"
+    override = os.environ.get("NUMBA_CACHE_DIR")
+    if override:
+        return Path(override) / sub
+    tree = src / "__pycache__"
+    if os.access(tree if tree.exists() else src, os.W_OK):
+        return tree
+    home = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(home) / "numba" / sub
+
+
+def _index_files(folder: Path) -> list[Path]:
+    return list(folder.glob(f"_kernels.*.{_TAG}.nbi")) if folder.is_dir() else []
+
+
+def is_cold() -> bool:
+    """Whether :func:`warm_up` will compile (cheap: file times only).
+
+    Returns
+    -------
+    bool
+        True when no completed warm-up of the current ``_kernels.py`` left its
+        marker, or cache index files have gone since.
+    """
+    folder = cache_dir()
+    marker = folder / MARKER
+    try:
+        src = KERNELS.stat().st_mtime
+        if marker.stat().st_mtime < src:
+            return True
+        expected = int(marker.read_text().strip() or 0)
+    except (OSError, ValueError):
+        return True
+    index = _index_files(folder)
+    if len(index) < expected:
+        return True
+    return any(p.stat().st_mtime < src for p in index)
+
+
+def _mark_warm() -> None:
+    folder = cache_dir()
+    try:
+        (folder / MARKER).write_text(f"{len(_index_files(folder))}\n")
+    except OSError:  # a read-only install: numba caches elsewhere or not at all
+        pass
+
+
+def exercise_particles() -> None:
+    """Run every particle operation once on a tiny mesh of this process alone.
+
+    Calls the kernels with the argument types the transport and flow solvers
+    pass (scalar and vector fields, P1 and callable velocities, the X-IVAS
+    blend, sources along the path, both projections, population control), so
+    that numba compiles (or loads from its cache) each specialisation a scene
+    needs. Collective over ``MPI.COMM_SELF`` only: any rank may call it at any
+    time.
+    """
+    # imported here so that the cache check (``make setup``) stays cheap
+    import numpy as np  # noqa: PLC0415
+
+    from pfem2x import compat  # noqa: PLC0415
+    from pfem2x import particles as P  # noqa: PLC0415
+    from pfem2x.compat import MPI, dolfinx  # noqa: PLC0415
+    from pfem2x.mesh import build_mesh  # noqa: PLC0415
+
+    d = build_mesh(MPI.COMM_SELF, "rectangle", [[0.0, 0.0], [1.0, 1.0]], [3, 3])
+    g = d.gdim
+    V = compat.function_space(d.mesh, 1)
+    W = compat.function_space(d.mesh, 1, shape=(g,))
+    T, T_hat, dT = (dolfinx.fem.Function(V) for _ in range(3))
+    u, u_old, u_hat = (dolfinx.fem.Function(W) for _ in range(3))
+    xv = V.tabulate_dof_coordinates()[:, :g]
+    T.x.array[:] = np.exp(-((xv[:, 0] - 0.5) ** 2 + (xv[:, 1] - 0.5) ** 2))
+    dT.x.array[:] = 1e-3
+    xw = W.tabulate_dof_coordinates()[:, :g]
+    uw = np.column_stack([0.5 - xw[:, 1], xw[:, 0] - 0.5]) * 0.1
+    u.x.array[:] = uw.reshape(-1)
+    u_old.x.array[:] = u.x.array
+
+    cloud = P.Cloud(d, {"T": (), "u": (g,), "phase": (), "_mom": (g + 1,)})
+    P.seed_cells(cloud, 6, seed=1)
+    P.interpolate(cloud, "T", T)
+    P.interpolate(cloud, "u", u)
+    cloud.field("phase")[:] = cloud.x[:, 1] < 0.5
+    P.assign_ids(cloud)
+    cloud.check()
+
+    def vel(x: np.ndarray, s: Any) -> np.ndarray:
+        return 0.1 * np.column_stack([0.5 - x[:, 1], x[:, 0] - 0.5])
+
+    def source(x: np.ndarray, s: Any) -> np.ndarray:
+        return np.ones(len(x))
+
+    dt = 0.2
+    P.advect(cloud, u, dt, courant=0.5, gradient_courant=0.1)
+    P.advect(cloud, u_old, dt, velocity_next=u, theta=0.5, courant=0.5, gradient_courant=0.1)
+    P.advect(cloud, u.x.array.reshape(-1, g).copy(), dt)
+    P.advect(cloud, vel, dt, substeps=2, source=source, source_field="T", source_scale=0.5)
+    P.advect(cloud, u, dt, source=T, source_field="T")
+    for method in ("linear", "average"):
+        P.project(cloud, "T", T_hat, method=method, empty="neighbours")
+        P.project(cloud, "u", u_hat, method=method, empty="neighbours")
+    P.project(cloud, "phase", T_hat, method="average", empty="keep")
+    mom = np.zeros((len(xv), g + 1))
+    P.project(cloud, "_mom", mom, method="average", empty="neighbours")
+    P.evaluate(cloud, T)
+    P.evaluate(cloud, u)
+    P.add_increment(cloud, "T", dT)
+    P.add_increment(cloud, "u", u)
+    P.relocate(cloud)
+    P.locate_points(cloud.pmesh, cloud.x[:4].copy())
+    P.rebalance(cloud, 4, 8, seed=2, fallback={"T": T})
+    P.rebalance(cloud, 10, 12, seed=3, fallback={"u": u, "phase": T})
+    cloud.remove(cloud.x[:, 0] > 0.5)  # empty cells: nodes that only neighbours fill
+    for method in ("linear", "average"):
+        P.project(cloud, "T", T_hat, method=method, empty="neighbours")
+        P.project(cloud, "u", u_hat, method=method, empty="neighbours")
+    P.project(cloud, "_mom", mom, method="average", empty="neighbours")
+    drop = np.zeros(cloud.n, dtype=bool)
+    drop[::3] = True
+    cloud.remove(drop)
+    P.rebalance(cloud, 6, 0, seed=4, fallback={"T": T, "u": u})
+
+
+def warm_up(say: Callable[[str], Any] | None = None, comm: Any = None) -> float:
+    """Compile (cold cache) or load (warm cache) every particle kernel; announce a compile.
+
+    Parameters
+    ----------
+    say:
+        Called with :data:`MESSAGE` before compiling when the cache is cold
+        (or once the warm-up has taken :data:`LATE_NOTICE` seconds); ``None``
+        keeps quiet. Pass a function that prints on rank 0 only.
+    comm:
+        An MPI communicator (collective then): rank 0 compiles first and the
+        other ranks load its cache files afterwards. Several processes that
+        compile the same kernels at once write the same cache files, and numba
+        does not lock them (a process may load another's code for its own
+        signature). ``None``: this process alone.
+
+    Returns
+    -------
+    float
+        Wall seconds spent compiling or loading the kernels (on this rank,
+        waiting for rank 0 included).
+    """
+    t0 = time.perf_counter()
+    told = threading.Event()
+
+    def tell() -> None:
+        if say is not None and not told.is_set():
+            told.set()
+            say(MESSAGE)
+
+    def run() -> None:
+        timer = None
+        if is_cold():
+            tell()
+        elif say is not None:
+            timer = threading.Timer(LATE_NOTICE, tell)
+            timer.daemon = True
+            timer.start()
+        try:
+            exercise_particles()
+        finally:
+            if timer is not None:
+                timer.cancel()
+        _mark_warm()
+
+    if comm is None or comm.size == 1:
+        run()
+        return time.perf_counter() - t0
+    failed: BaseException | None = None
+    if comm.rank == 0:
+        try:
+            run()
+        except Exception as exc:  # re-raised on every rank below, after the collective
+            failed = exc
+    from pfem2x.compat import MPI  # noqa: PLC0415
+
+    if comm.allreduce(failed is not None, op=MPI.LOR):
+        raise RuntimeError(f"compiling the particle kernels failed on rank 0: {failed}") from failed
+    if comm.rank != 0:
+        exercise_particles()
+    return time.perf_counter() - t0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m pfem2x.jit``: warm the kernel cache (``make setup`` runs it)."""
+    ap = argparse.ArgumentParser(prog="python -m pfem2x.jit", description=__doc__.split("\n")[0])
+    ap.add_argument(
+        "--check", action="store_true", help="only say whether the cache is cold (exit 1)"
+    )
+    ap.add_argument(
+        "--if-cold", action="store_true", help="warm up only when the cache is cold (else silent)"
+    )
+    args = ap.parse_args(argv)
+    cold = is_cold()
+    if args.check:
+        print(f"pfem2x: particle kernel cache {'cold' if cold else 'warm'} ({cache_dir()})")
+        return 1 if cold else 0
+    if args.if_cold and not cold:
+        return 0
+
+    def say(msg: str) -> None:
+        print(msg, file=sys.stderr, flush=True)
+
+    seconds = warm_up(say)
+    print(f"pfem2x: particle kernels ready in {seconds:.1f} s ({cache_dir()})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

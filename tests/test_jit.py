@@ -1,0 +1,51 @@
+"""The particle kernels' warm-up: the cold-cache check and the announcement."""
+
+import os
+import time
+
+from pfem2x import jit
+
+
+def test_cold_cache_check_follows_marker_and_index_files(tmp_path, monkeypatch):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    folder = jit.cache_dir()
+    assert folder.parent == tmp_path
+    assert jit.is_cold()  # nothing there
+    folder.mkdir()
+    src = jit.KERNELS.stat().st_mtime
+    index = [folder / f"_kernels.k{i}-1.{jit._TAG}.nbi" for i in range(2)]
+    for p in index:
+        p.write_bytes(b"")
+    assert jit.is_cold()  # index files but no completed warm-up
+    jit._mark_warm()
+    assert (folder / jit.MARKER).read_text().strip() == "2"
+    assert not jit.is_cold()
+    index[0].unlink()  # a cache file removed since
+    assert jit.is_cold()
+    index[0].write_bytes(b"")
+    assert not jit.is_cold()
+    os.utime(index[1], (src - 10, src - 10))  # an index older than the kernels' source
+    assert jit.is_cold()
+    os.utime(index[1], None)
+    os.utime(folder / jit.MARKER, (src - 10, src - 10))  # a warm-up of older kernels
+    assert jit.is_cold()
+
+
+def test_warm_up_on_a_warm_cache_is_quiet_and_quick():
+    jit.warm_up()  # compiles if this checkout's cache is cold
+    assert not jit.is_cold()
+    said = []
+    t0 = time.perf_counter()
+    seconds = jit.warm_up(said.append)
+    assert 0.0 < seconds <= time.perf_counter() - t0
+    assert said == [] or seconds > jit.LATE_NOTICE, said
+
+
+def test_warm_up_announces_a_cold_cache(monkeypatch):
+    said = []
+    monkeypatch.setattr(jit, "is_cold", lambda: True)
+    monkeypatch.setattr(jit, "exercise_particles", lambda: None)
+    monkeypatch.setattr(jit, "_mark_warm", lambda: None)
+    jit.warm_up(said.append)
+    assert said == [jit.MESSAGE]
+    assert "compiling particle kernels" in jit.MESSAGE
