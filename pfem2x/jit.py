@@ -62,7 +62,11 @@ def cache_dir() -> Path:
 
 
 def _index_files(folder: Path) -> list[Path]:
-    return list(folder.glob(f"_kernels.*.{_TAG}.nbi")) if folder.is_dir() else []
+    """numba's index files of the current ``_kernels.py`` (those of earlier versions stay)."""
+    if not folder.is_dir():
+        return []
+    src = KERNELS.stat().st_mtime
+    return [p for p in folder.glob(f"_kernels.*.{_TAG}.nbi") if p.stat().st_mtime >= src]
 
 
 def is_cold() -> bool:
@@ -83,10 +87,7 @@ def is_cold() -> bool:
         expected = int(marker.read_text().strip() or 0)
     except (OSError, ValueError):
         return True
-    index = _index_files(folder)
-    if len(index) < expected:
-        return True
-    return any(p.stat().st_mtime < src for p in index)
+    return len(_index_files(folder)) < expected
 
 
 def _mark_warm() -> None:

@@ -27,6 +27,10 @@ def test_cold_cache_check_follows_marker_and_index_files(tmp_path, monkeypatch):
     os.utime(index[1], (src - 10, src - 10))  # an index older than the kernels' source
     assert jit.is_cold()
     os.utime(index[1], None)
+    stale = folder / f"_kernels.old-9.{jit._TAG}.nbi"  # left by an earlier _kernels.py
+    stale.write_bytes(b"")
+    os.utime(stale, (src - 10, src - 10))
+    assert not jit.is_cold()
     os.utime(folder / jit.MARKER, (src - 10, src - 10))  # a warm-up of older kernels
     assert jit.is_cold()
 

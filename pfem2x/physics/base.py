@@ -216,6 +216,12 @@ class Solver:
                 continue
             if not any(f"{kind}.{name}" in data for kind in ("function", "array", "json")):
                 return name
+        cloud = self.cloud()
+        if cloud is not None and "cloud_meta" in data:
+            stored = json.loads(str(data["cloud_meta"]))["shapes"]
+            for name in cloud.field_names:
+                if name not in stored:
+                    return f"particle field {name}"
         return ""
 
     def restore_checkpoint(

@@ -20,36 +20,13 @@ are supported in every mesh solve through :class:`pfem2x.periodic.PeriodicConstr
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
-
-from pfem2x.physics import solver_class
 from pfem2x.physics.transport.characteristic import CharacteristicTransport
 from pfem2x.physics.transport.eulerian import EulerianTransport
 from pfem2x.physics.transport.problem import TransportBase, TransportProblem
 
-if TYPE_CHECKING:
-    from pfem2x.mesh import Domain
-    from pfem2x.physics.base import Solver
-    from pfem2x.scene import Scene
-
 __all__ = [
     "CharacteristicTransport",
     "EulerianTransport",
-    "LagrangianTransport",
     "TransportBase",
     "TransportProblem",
-    "make_transport_solver",
 ]
-
-
-def make_transport_solver(scene: Scene, domain: Domain) -> Solver:
-    """The transport solver of the scene's frame (see :func:`pfem2x.physics.make_solver`)."""
-    return solver_class("transport", scene.frame)(scene, domain)
-
-
-def __getattr__(name: str) -> Any:
-    if name == "LagrangianTransport":  # imported on demand: it compiles the particle kernels
-        from pfem2x.physics.transport.lagrangian import LagrangianTransport  # noqa: PLC0415
-
-        return LagrangianTransport
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
