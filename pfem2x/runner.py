@@ -420,8 +420,16 @@ class Simulation:
         summary = pout.summary(self.scene, self.comm, self.domain, self.solver, run)
         if self._resume is not None:
             summary["resumed_at_step"] = int(self._resume[1]["step"])
+        err = ""
         if self.rank0:
-            pout.pio.write_json(out / "summary.json", summary)
+            try:
+                pout.pio.write_json(out / "summary.json", summary)
+            except OSError as exc:
+                err = f"{out / 'summary.json'}: {exc.strerror or exc}"
+        # every rank returns once the files are on disk (scripts read them after run())
+        err = self.comm.bcast(err, root=0)
+        if err:
+            self.say(f"warning: summary not written: {err}")
         steps = len(lp.history) - 1
         if status == "ok":
             self.say(

@@ -100,3 +100,13 @@ def test_adaptive_dt_holds_the_courant_number(shared_tmp):
     assert sm["status"] == "ok" and res.history[-1]["t"] == pytest.approx(2.0)
     assert 1.9 <= sm["courant_max"] <= 2.0 * (1 + 1e-9)
     assert sm["dt_min"] < 0.5 * sm["dt"]  # the step shrank as the flow sped up
+
+
+@pytest.mark.mpi
+def test_every_rank_finds_the_summary_when_run_returns(shared_tmp):
+    """Rank 0 writes summary.json; no rank returns from run() before it is on disk
+    (scripts under mpirun read a run's files right after it)."""
+    for i in range(3):
+        res = Simulation(scene(), shared_tmp / f"s{i}", quiet=True).run()
+        saved = json.loads((shared_tmp / f"s{i}" / "summary.json").read_text())
+        assert saved["steps"] == res.summary["steps"]
