@@ -156,6 +156,12 @@ class LagrangianFlow(FlowSolver):
             pr.two_phase and fl.light_source == "gravity" and not self.gravity_only
         )
         self.extra_pass = bool(fl.extra_pass)
+        #: the explicit source's pressure solved from u^n each step (flow.explicit_pressure)
+        self.consistent_pressure = not self.gravity_only and fl.explicit_pressure == "consistent"
+        #: the source integrated on the sub-steps of the path (False: its two end points;
+        #: kept for measurements)
+        self.path_source = True
+        self.path_substeps = 1  # sub-steps of the last move's source integral
         self.dt_c = compat.dolfinx.fem.Constant(mesh, PETSc.ScalarType(1.0))
 
         # cell-wise density / viscosity from the particles
@@ -261,6 +267,14 @@ class LagrangianFlow(FlowSolver):
                 a_h = a_h + (f_body / pr.phases[0][1] if self.jump is not None else g)
             self.L_fh = compat.form(ufl.dot(a_h, w) * dx)
             self.b_fh = compat.create_vector(self.L_fh)
+        self.L_pc: Any = None
+        if self.consistent_pressure:  # grad(u):grad(u)^T r + (f / rho).grad(r)
+            r = ufl.TestFunction(self.Q)
+            gu = ufl.grad(self.u)
+            L_pc = ufl.inner(gu, ufl.transpose(gu)) * r * dx
+            if grav:
+                L_pc = L_pc + (1.0 / self.rho) * ufl.dot(f_body, ufl.grad(r)) * dx
+            self.L_pc = compat.form(L_pc)
         self.b_m = compat.create_vector(self.projection.L_mass)
         self._diag = compat.create_vector(self.projection.L_mass)
 
@@ -320,21 +334,62 @@ class LagrangianFlow(FlowSolver):
 
     # -- the step -----------------------------------------------------------------
     def _move(self, dt: float, theta: float) -> None:
-        """Step 1: X-IVAS move along ``u^n`` (+ ``theta``: ``u^{n+1}``) with the source."""
+        r"""Step 1: X-IVAS move along ``u^n`` (+ ``theta``: ``u^{n+1}``), the source on the path.
+
+        Eq. 2.9: the source :math:`a` is integrated along each particle's path, by
+        the trapezoid rule on every one of ``m`` equal sub-steps of the move
+        (:meth:`_path_substeps`): kick :math:`h/2`, move :math:`h`, kick :math:`h/2`
+        with :math:`h = \Delta t/m` (the inner kicks merged). With ``m = 1`` this is
+        the trapezoid of the path's two end points.
+        """
         c = self.cloud_
         meth = self.scene.method
-        self._kick(0.5 * dt)
-        if theta > 0.0:
-            P.advect(
-                c, self._u_old, dt, velocity_next=self.u, theta=theta,
-                courant=meth.substep_courant, gradient_courant=meth.substep_gradient,
-            )  # fmt: skip
-        else:
-            P.advect(
-                c, self.u, dt, courant=meth.substep_courant,
-                gradient_courant=meth.substep_gradient,
-            )  # fmt: skip
-        self._kick(0.5 * dt)  # storage may have been reordered / migrated in between
+        vel = self._u_old if theta > 0.0 else self.u
+        m = self._path_substeps(vel, dt)
+        self.path_substeps = m
+        h = dt / m
+        self._kick(0.5 * h)
+        for k in range(m):
+            if theta > 0.0:
+                P.advect(
+                    c, self._u_old, h, velocity_next=self.u, theta=theta,
+                    courant=meth.substep_courant, gradient_courant=meth.substep_gradient,
+                )  # fmt: skip
+            else:
+                P.advect(
+                    c, vel, h, courant=meth.substep_courant,
+                    gradient_courant=meth.substep_gradient,
+                )  # fmt: skip
+            # storage may have been reordered / migrated in between
+            self._kick(h if k < m - 1 else 0.5 * h)
+
+    def _path_substeps(self, vel: Any, dt: float) -> int:
+        r"""Sub-steps ``m`` of the path integral of the source (same on every rank, collective).
+
+        The sub-step limits of the move, taken on the mesh velocity: a sub-step
+        crosses at most ``method.substep_courant`` cells,
+        :math:`h \max_K |u|_K / h_K \le` ``substep_courant``, and turns by at most
+        ``method.substep_gradient``, :math:`h \max_K |\nabla u|_K \le`
+        ``substep_gradient`` (0 disables). ``m = 1`` with ``flow.pressure_step =
+        "total"`` (the source is :math:`g` or nothing) and without :attr:`path_source`.
+        """
+        if self.gravity_only or not self.path_source:
+            return 1  # no source, or a constant g: its integral needs no sub-steps
+        meth = self.scene.method
+        t = self.domain.table
+        nc = self.n_owned
+        vals = np.asarray(vel.x.array).reshape(-1, self.gdim)
+        dofs = self.dofmap[:nc]
+        cell_vals = vals[dofs]  # (cells, nodes, gdim)
+        speed = np.linalg.norm(cell_vals, axis=2).max(axis=1)
+        rate = float(np.max(speed / t.h[:nc], initial=0.0)) / meth.substep_courant
+        if meth.substep_gradient > 0.0:
+            dv = cell_vals[:, 1:, :] - cell_vals[:, :1, :]  # (cells, tdim, gdim)
+            grad = np.einsum("cia,cib->cab", dv, t.inv_map[:nc])
+            gn = np.sqrt(np.einsum("cab,cab->c", grad, grad))
+            rate = max(rate, float(np.max(gn, initial=0.0)) / meth.substep_gradient)
+        rate = float(self.comm.allreduce(rate, op=MPI.MAX))
+        return max(1, int(np.ceil(rate * dt - 1e-9)))
 
     def _kick(self, h: float) -> None:
         r"""``u_p += h a(x_p)``, the explicit source of step 1.
@@ -466,8 +521,28 @@ class LagrangianFlow(FlowSolver):
         uh = self.u_hat.x.array.reshape(-1, g)
         uh[ok] = mn[ok, :g] / mn[ok, g:]
 
+    def _consistent_pressure(self) -> None:
+        r"""``p`` from the velocity ``u^n`` and the body force, and the source ``a`` from it.
+
+        The pressure Poisson equation of a divergence-free velocity,
+        :math:`\nabla\cdot(\rho^{-1}\nabla p) = \nabla\cdot(\rho^{-1} f) -
+        \nabla u : (\nabla u)^T` (natural conditions: on straight walls
+        :math:`n\cdot(u\cdot\nabla u) = 0`), with the operator of the last
+        pressure step (the density has not changed since). At rest it is the
+        hydrostatic start. Collective.
+        """
+        proj = self.projection
+        if proj.A_p is None:
+            with self.timer("assembly"):
+                proj.assemble_operator()
+        proj.solve(self.L_pc, self.p)
+        with self.timer("assembly"):
+            self._update_force()
+
     def step(self, t: float, dt: float) -> None:
         self.dt_c.value = dt
+        if self.consistent_pressure:
+            self._consistent_pressure()
         self.dt_last = dt
         c = self.cloud_
         if self.extra_pass:
