@@ -10,11 +10,22 @@ motion alone (no convective term is ever assembled). One step
    eq. 2.10 with :math:`\theta = 0`, RK2 sub-steps of at most
    ``method.substep_courant`` cells) and add the explicit part of the
    momentum source, :math:`a^n = g - \rho^{-1}\nabla p^n`, integrated along
-   the path by the trapezoid rule of its two ends:
-   :math:`\hat u_p = u_p + \tfrac{\Delta t}{2}(a^n(x_p^n) + a^n(x_p^{n+1}))`.
+   the path (eq. 2.9): the trapezoid rule on each of ``m`` equal sub-steps
+   :math:`h = \Delta t/m` of the move, ``m`` from the same sub-step limits
+   (``method.substep_courant``, ``method.substep_gradient``) on the mesh
+   velocity (:meth:`LagrangianFlow._path_substeps`), so a particle's
+   centripetal acceleration follows its curved path.
    :math:`a^n` is the P1 field :math:`M_\rho^{-1}\int(\rho g - \nabla p^n)\cdot w`
    (the :math:`\rho`-weighted lumped mass of the correction step), so a fluid
    in hydrostatic balance gets no kick and the particles get no cell-wise jumps.
+   Its pressure (``flow.explicit_pressure = "consistent"``) is solved from
+   :math:`u^n` at the start of the step,
+   :math:`\nabla\cdot(\rho^{-1}\nabla p^n) = \nabla\cdot(\rho^{-1}f) - \nabla u^n : (\nabla u^n)^T`
+   (the pressure of a divergence-free velocity; hydrostatic at rest), instead of
+   the last step's :math:`p^n` (``"lagged"``), which starts from 0 and, the
+   pressure step correcting only the divergence, does not follow a decaying
+   vortex: Taylor–Green at Courant 8 (32 × 32) 0.0036 against 0.042
+   (docs/RESULTS.md).
 2. **Project** :math:`\hat u_p` to the P1 nodes (``method.projection``; ``"auto"``
    is the paper's shape-function average: the linear-exact fit passes the
    FLIP velocity's sub-cell noise on to the mesh, and Rayleigh–Taylor at
@@ -62,14 +73,19 @@ the particles get no explicit source.
 ``flow.extra_pass = true`` repeats steps 1–4 once from the start-of-step
 particles with :math:`\theta = 1/2` in eq. 2.10 (positions with the mean
 of :math:`u^n` and the first pass's :math:`u^{n+1}`) and the source
-:math:`a` averaged the same way — step 6 of the paper.
+:math:`a` averaged the same way — step 6 of the paper. Its path is moved in
+the same ``m`` sub-steps, each an X-IVAS move with :math:`\theta = 1/2`; its
+source is the mean of the start-of-step :math:`a^n` (consistent pressure) and
+the first pass's :math:`a` (pressure :math:`p^n + \delta p`).
 
 Operators per step (``fem.COUNTERS``): 1 matrix assembly (pressure; +1 for
 the viscous matrix when the phases' viscosities differ), 4 vector
 assemblies (lumped mass, pressure right-hand side, correction, source
 :math:`a`), 2 solves (viscous predictor, pressure; 1 without viscosity);
-twice that with ``flow.extra_pass``; +1 vector (the heavy phase's source) with
-``flow.light_source = "gravity"``. Large density ratios (dam break, 1000):
+twice that with ``flow.extra_pass``; once per step +2 vectors (right-hand
+side, source :math:`a`) and +1 solve for the consistent pressure; +1 vector
+(the heavy phase's source) with ``flow.light_source = "gravity"``.
+Large density ratios (dam break, 1000):
 ``flow.light_source = "gravity"``, ``flow.pic_fraction_light = 1`` and
 ``flow.mass_weighted = true`` (see :meth:`LagrangianFlow._kick`,
 :meth:`LagrangianFlow._project_velocity`).
@@ -90,6 +106,7 @@ key                                 effect in this frame
 ``method.substep_gradient``         step 1: turning per sub-step
 ``method.preconditioner``           pressure solve (cg); the viscous solve is cg/Jacobi
 ``flow.pressure_step``              ``increment`` (source :math:`g - \nabla p^n/\rho`) or ``total``
+``flow.explicit_pressure``          step 1: ``consistent`` (solved from :math:`u^n`) or ``lagged``
 ``flow.correction``                 ``velocity`` or ``momentum`` (step 3)
 ``flow.extra_pass``                 step 6 of the paper (second pass, :math:`\theta = 1/2`)
 ``flow.pic_fraction``               step 4 blend towards the mesh velocity (0: FLIP)
@@ -139,7 +156,7 @@ class LagrangianFlow(FlowSolver):
 
     name = "flow-lagrangian"
     checkpoint_state = ("rho", "mu", "frac", "u_hat", "force", "force_heavy", "du", "_u_old",
-                        "_mom_nodes", "step_count")  # fmt: skip
+                        "_mom_nodes", "step_count", "dist")  # fmt: skip
 
     def __init__(self, scene: Scene, domain: Domain):
         super().__init__(scene, domain)
@@ -190,8 +207,12 @@ class LagrangianFlow(FlowSolver):
         self._forms()
         compat.set_bc(compat.petsc_vec(self.u), self._bcs_u)
         self.u.x.scatter_forward()
+        #: the pressure operator and the lumped mass are not those of the current
+        #: density (see :meth:`_consistent_pressure`)
+        self._operator_stale = True
         if np.any(pr.gravity):
             self.projection.initial_pressure(self.p)
+            self._operator_stale = False
         self.projection.assemble_mass()
         self._update_force()
         self.volume0 = self.phase_volumes()
@@ -447,6 +468,7 @@ class LagrangianFlow(FlowSolver):
                 self.u_star.x.scatter_forward()
         with self.timer("assembly"):
             proj.assemble_operator()
+            self._operator_stale = False
         proj.solve_increment()
         with self.timer("assembly"):
             proj.correct(self.u, self.p, dt, mass_ready=True)
@@ -528,16 +550,25 @@ class LagrangianFlow(FlowSolver):
         :math:`\nabla\cdot(\rho^{-1}\nabla p) = \nabla\cdot(\rho^{-1} f) -
         \nabla u : (\nabla u)^T` (natural conditions: on straight walls
         :math:`n\cdot(u\cdot\nabla u) = 0`), with the operator of the last
-        pressure step (the density has not changed since). At rest it is the
-        hydrostatic start. Collective.
+        pressure step (the density has not changed since; re-assembled after a
+        restart). At rest it is the hydrostatic start. Collective.
         """
         proj = self.projection
-        if proj.A_p is None:
+        if self._operator_stale:
             with self.timer("assembly"):
                 proj.assemble_operator()
+                proj.assemble_mass()
+            self._operator_stale = False
         proj.solve(self.L_pc, self.p)
         with self.timer("assembly"):
             self._update_force()
+
+    def restore_checkpoint(self, *args: Any, **kwargs: Any) -> None:
+        """As :meth:`Solver.restore_checkpoint`; then the pressure operator, mass and jump force."""
+        super().restore_checkpoint(*args, **kwargs)
+        self._operator_stale = True
+        if self.jump is not None:  # the balanced force of the restored level set
+            self.jump.update(self.dist.x.array)
 
     def step(self, t: float, dt: float) -> None:
         self.dt_c.value = dt
