@@ -354,6 +354,13 @@ SCHEMA: dict[str, dict[str, Key]] = {
             doc="PFEM-2, two phases: project the particle velocity to the nodes weighted by "
             "the particle density (sum rho u / sum rho; for large density ratios)",
         ),
+        "explicit_pressure": Key(
+            choice("consistent", "lagged"),
+            "consistent",
+            doc="PFEM-2, pressure_step = increment: the pressure in the particles' explicit "
+            "source: consistent = solved each step from u^n (div(grad(p)/rho) = div(f/rho) - "
+            "grad(u):grad(u)^T), lagged = the last step's p^n",
+        ),
         "pressure_step": Key(
             choice("increment", "total"),
             "increment",
@@ -480,6 +487,7 @@ FRAME_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
             "flow.light_source",
             "flow.mass_weighted",
             "flow.extra_pass",
+            "flow.explicit_pressure",
         ),
     },
 }

@@ -10,11 +10,22 @@ motion alone (no convective term is ever assembled). One step
    eq. 2.10 with :math:`\theta = 0`, RK2 sub-steps of at most
    ``method.substep_courant`` cells) and add the explicit part of the
    momentum source, :math:`a^n = g - \rho^{-1}\nabla p^n`, integrated along
-   the path by the trapezoid rule of its two ends:
-   :math:`\hat u_p = u_p + \tfrac{\Delta t}{2}(a^n(x_p^n) + a^n(x_p^{n+1}))`.
+   the path (eq. 2.9): the trapezoid rule on each of ``m`` equal sub-steps
+   :math:`h = \Delta t/m` of the move, ``m`` from the same sub-step limits
+   (``method.substep_courant``, ``method.substep_gradient``) on the mesh
+   velocity (:meth:`LagrangianFlow._path_substeps`), so a particle's
+   centripetal acceleration follows its curved path.
    :math:`a^n` is the P1 field :math:`M_\rho^{-1}\int(\rho g - \nabla p^n)\cdot w`
    (the :math:`\rho`-weighted lumped mass of the correction step), so a fluid
    in hydrostatic balance gets no kick and the particles get no cell-wise jumps.
+   Its pressure (``flow.explicit_pressure = "consistent"``) is solved from
+   :math:`u^n` at the start of the step,
+   :math:`\nabla\cdot(\rho^{-1}\nabla p^n) = \nabla\cdot(\rho^{-1}f) - \nabla u^n : (\nabla u^n)^T`
+   (the pressure of a divergence-free velocity; hydrostatic at rest), instead of
+   the last step's :math:`p^n` (``"lagged"``), which starts from 0 and, the
+   pressure step correcting only the divergence, does not follow a decaying
+   vortex: Taylor–Green at Courant 8 (32 × 32) 0.0036 against 0.042
+   (docs/RESULTS.md).
 2. **Project** :math:`\hat u_p` to the P1 nodes (``method.projection``; ``"auto"``
    is the paper's shape-function average: the linear-exact fit passes the
    FLIP velocity's sub-cell noise on to the mesh, and Rayleigh–Taylor at
@@ -62,14 +73,19 @@ the particles get no explicit source.
 ``flow.extra_pass = true`` repeats steps 1–4 once from the start-of-step
 particles with :math:`\theta = 1/2` in eq. 2.10 (positions with the mean
 of :math:`u^n` and the first pass's :math:`u^{n+1}`) and the source
-:math:`a` averaged the same way — step 6 of the paper.
+:math:`a` averaged the same way — step 6 of the paper. Its path is moved in
+the same ``m`` sub-steps, each an X-IVAS move with :math:`\theta = 1/2`; its
+source is the mean of the start-of-step :math:`a^n` (consistent pressure) and
+the first pass's :math:`a` (pressure :math:`p^n + \delta p`).
 
 Operators per step (``fem.COUNTERS``): 1 matrix assembly (pressure; +1 for
 the viscous matrix when the phases' viscosities differ), 4 vector
 assemblies (lumped mass, pressure right-hand side, correction, source
 :math:`a`), 2 solves (viscous predictor, pressure; 1 without viscosity);
-twice that with ``flow.extra_pass``; +1 vector (the heavy phase's source) with
-``flow.light_source = "gravity"``. Large density ratios (dam break, 1000):
+twice that with ``flow.extra_pass``; once per step +2 vectors (right-hand
+side, source :math:`a`) and +1 solve for the consistent pressure; +1 vector
+(the heavy phase's source) with ``flow.light_source = "gravity"``.
+Large density ratios (dam break, 1000):
 ``flow.light_source = "gravity"``, ``flow.pic_fraction_light = 1`` and
 ``flow.mass_weighted = true`` (see :meth:`LagrangianFlow._kick`,
 :meth:`LagrangianFlow._project_velocity`).
@@ -90,6 +106,7 @@ key                                 effect in this frame
 ``method.substep_gradient``         step 1: turning per sub-step
 ``method.preconditioner``           pressure solve (cg); the viscous solve is cg/Jacobi
 ``flow.pressure_step``              ``increment`` (source :math:`g - \nabla p^n/\rho`) or ``total``
+``flow.explicit_pressure``          step 1: ``consistent`` (solved from :math:`u^n`) or ``lagged``
 ``flow.correction``                 ``velocity`` or ``momentum`` (step 3)
 ``flow.extra_pass``                 step 6 of the paper (second pass, :math:`\theta = 1/2`)
 ``flow.pic_fraction``               step 4 blend towards the mesh velocity (0: FLIP)
@@ -139,7 +156,7 @@ class LagrangianFlow(FlowSolver):
 
     name = "flow-lagrangian"
     checkpoint_state = ("rho", "mu", "frac", "u_hat", "force", "force_heavy", "du", "_u_old",
-                        "_mom_nodes", "step_count")  # fmt: skip
+                        "_mom_nodes", "step_count", "dist")  # fmt: skip
 
     def __init__(self, scene: Scene, domain: Domain):
         super().__init__(scene, domain)
@@ -156,6 +173,12 @@ class LagrangianFlow(FlowSolver):
             pr.two_phase and fl.light_source == "gravity" and not self.gravity_only
         )
         self.extra_pass = bool(fl.extra_pass)
+        #: the explicit source's pressure solved from u^n each step (flow.explicit_pressure)
+        self.consistent_pressure = not self.gravity_only and fl.explicit_pressure == "consistent"
+        #: the source integrated on the sub-steps of the path (False: its two end points;
+        #: kept for measurements)
+        self.path_source = True
+        self.path_substeps = 1  # sub-steps of the last move's source integral
         self.dt_c = compat.dolfinx.fem.Constant(mesh, PETSc.ScalarType(1.0))
 
         # cell-wise density / viscosity from the particles
@@ -184,8 +207,12 @@ class LagrangianFlow(FlowSolver):
         self._forms()
         compat.set_bc(compat.petsc_vec(self.u), self._bcs_u)
         self.u.x.scatter_forward()
+        #: the pressure operator and the lumped mass are not those of the current
+        #: density (see :meth:`_consistent_pressure`)
+        self._operator_stale = True
         if np.any(pr.gravity):
             self.projection.initial_pressure(self.p)
+            self._operator_stale = False
         self.projection.assemble_mass()
         self._update_force()
         self.volume0 = self.phase_volumes()
@@ -261,6 +288,14 @@ class LagrangianFlow(FlowSolver):
                 a_h = a_h + (f_body / pr.phases[0][1] if self.jump is not None else g)
             self.L_fh = compat.form(ufl.dot(a_h, w) * dx)
             self.b_fh = compat.create_vector(self.L_fh)
+        self.L_pc: Any = None
+        if self.consistent_pressure:  # grad(u):grad(u)^T r + (f / rho).grad(r)
+            r = ufl.TestFunction(self.Q)
+            gu = ufl.grad(self.u)
+            L_pc = ufl.inner(gu, ufl.transpose(gu)) * r * dx
+            if grav:
+                L_pc = L_pc + (1.0 / self.rho) * ufl.dot(f_body, ufl.grad(r)) * dx
+            self.L_pc = compat.form(L_pc)
         self.b_m = compat.create_vector(self.projection.L_mass)
         self._diag = compat.create_vector(self.projection.L_mass)
 
@@ -320,21 +355,62 @@ class LagrangianFlow(FlowSolver):
 
     # -- the step -----------------------------------------------------------------
     def _move(self, dt: float, theta: float) -> None:
-        """Step 1: X-IVAS move along ``u^n`` (+ ``theta``: ``u^{n+1}``) with the source."""
+        r"""Step 1: X-IVAS move along ``u^n`` (+ ``theta``: ``u^{n+1}``), the source on the path.
+
+        Eq. 2.9: the source :math:`a` is integrated along each particle's path, by
+        the trapezoid rule on every one of ``m`` equal sub-steps of the move
+        (:meth:`_path_substeps`): kick :math:`h/2`, move :math:`h`, kick :math:`h/2`
+        with :math:`h = \Delta t/m` (the inner kicks merged). With ``m = 1`` this is
+        the trapezoid of the path's two end points.
+        """
         c = self.cloud_
         meth = self.scene.method
-        self._kick(0.5 * dt)
-        if theta > 0.0:
-            P.advect(
-                c, self._u_old, dt, velocity_next=self.u, theta=theta,
-                courant=meth.substep_courant, gradient_courant=meth.substep_gradient,
-            )  # fmt: skip
-        else:
-            P.advect(
-                c, self.u, dt, courant=meth.substep_courant,
-                gradient_courant=meth.substep_gradient,
-            )  # fmt: skip
-        self._kick(0.5 * dt)  # storage may have been reordered / migrated in between
+        vel = self._u_old if theta > 0.0 else self.u
+        m = self._path_substeps(vel, dt)
+        self.path_substeps = m
+        h = dt / m
+        self._kick(0.5 * h)
+        for k in range(m):
+            if theta > 0.0:
+                P.advect(
+                    c, self._u_old, h, velocity_next=self.u, theta=theta,
+                    courant=meth.substep_courant, gradient_courant=meth.substep_gradient,
+                )  # fmt: skip
+            else:
+                P.advect(
+                    c, vel, h, courant=meth.substep_courant,
+                    gradient_courant=meth.substep_gradient,
+                )  # fmt: skip
+            # storage may have been reordered / migrated in between
+            self._kick(h if k < m - 1 else 0.5 * h)
+
+    def _path_substeps(self, vel: Any, dt: float) -> int:
+        r"""Sub-steps ``m`` of the path integral of the source (same on every rank, collective).
+
+        The sub-step limits of the move, taken on the mesh velocity: a sub-step
+        crosses at most ``method.substep_courant`` cells,
+        :math:`h \max_K |u|_K / h_K \le` ``substep_courant``, and turns by at most
+        ``method.substep_gradient``, :math:`h \max_K |\nabla u|_K \le`
+        ``substep_gradient`` (0 disables). ``m = 1`` with ``flow.pressure_step =
+        "total"`` (the source is :math:`g` or nothing) and without :attr:`path_source`.
+        """
+        if self.gravity_only or not self.path_source:
+            return 1  # no source, or a constant g: its integral needs no sub-steps
+        meth = self.scene.method
+        t = self.domain.table
+        nc = self.n_owned
+        vals = np.asarray(vel.x.array).reshape(-1, self.gdim)
+        dofs = self.dofmap[:nc]
+        cell_vals = vals[dofs]  # (cells, nodes, gdim)
+        speed = np.linalg.norm(cell_vals, axis=2).max(axis=1)
+        rate = float(np.max(speed / t.h[:nc], initial=0.0)) / meth.substep_courant
+        if meth.substep_gradient > 0.0:
+            dv = cell_vals[:, 1:, :] - cell_vals[:, :1, :]  # (cells, tdim, gdim)
+            grad = np.einsum("cia,cib->cab", dv, t.inv_map[:nc])
+            gn = np.sqrt(np.einsum("cab,cab->c", grad, grad))
+            rate = max(rate, float(np.max(gn, initial=0.0)) / meth.substep_gradient)
+        rate = float(self.comm.allreduce(rate, op=MPI.MAX))
+        return max(1, int(np.ceil(rate * dt - 1e-9)))
 
     def _kick(self, h: float) -> None:
         r"""``u_p += h a(x_p)``, the explicit source of step 1.
@@ -392,6 +468,7 @@ class LagrangianFlow(FlowSolver):
                 self.u_star.x.scatter_forward()
         with self.timer("assembly"):
             proj.assemble_operator()
+            self._operator_stale = False
         proj.solve_increment()
         with self.timer("assembly"):
             proj.correct(self.u, self.p, dt, mass_ready=True)
@@ -466,8 +543,37 @@ class LagrangianFlow(FlowSolver):
         uh = self.u_hat.x.array.reshape(-1, g)
         uh[ok] = mn[ok, :g] / mn[ok, g:]
 
+    def _consistent_pressure(self) -> None:
+        r"""``p`` from the velocity ``u^n`` and the body force, and the source ``a`` from it.
+
+        The pressure Poisson equation of a divergence-free velocity,
+        :math:`\nabla\cdot(\rho^{-1}\nabla p) = \nabla\cdot(\rho^{-1} f) -
+        \nabla u : (\nabla u)^T` (natural conditions: on straight walls
+        :math:`n\cdot(u\cdot\nabla u) = 0`), with the operator of the last
+        pressure step (the density has not changed since; re-assembled after a
+        restart). At rest it is the hydrostatic start. Collective.
+        """
+        proj = self.projection
+        if self._operator_stale:
+            with self.timer("assembly"):
+                proj.assemble_operator()
+                proj.assemble_mass()
+            self._operator_stale = False
+        proj.solve(self.L_pc, self.p)
+        with self.timer("assembly"):
+            self._update_force()
+
+    def restore_checkpoint(self, *args: Any, **kwargs: Any) -> None:
+        """As :meth:`Solver.restore_checkpoint`; then the pressure operator, mass and jump force."""
+        super().restore_checkpoint(*args, **kwargs)
+        self._operator_stale = True
+        if self.jump is not None:  # the balanced force of the restored level set
+            self.jump.update(self.dist.x.array)
+
     def step(self, t: float, dt: float) -> None:
         self.dt_c.value = dt
+        if self.consistent_pressure:
+            self._consistent_pressure()
         self.dt_last = dt
         c = self.cloud_
         if self.extra_pass:
