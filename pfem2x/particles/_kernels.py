@@ -92,20 +92,6 @@ def _bary(x, c, origin, inv, lam):
     return m
 
 
-@njit(cache=True, error_model="numpy")
-def _project_to_facet(x, c, i, lam_i, inv):
-    """Move ``x`` onto the plane ``lambda_i = EPS_IN`` of cell ``c`` (drops the overshoot)."""
-    tdim = inv.shape[1]
-    gdim = inv.shape[2]
-    g2 = 0.0
-    for j in range(gdim):
-        v = _facet_grad(inv, c, i, j, tdim)
-        g2 += v * v
-    f = (lam_i - EPS_IN) / g2
-    for j in range(gdim):
-        x[j] -= f * _facet_grad(inv, c, i, j, tdim)
-
-
 @njit(cache=True, error_model="numpy", inline="always")
 def _facet_grad(inv, c, i, j, tdim):
     """Component ``j`` of the gradient of barycentric coordinate ``i`` in cell ``c``."""
@@ -117,47 +103,166 @@ def _facet_grad(inv, c, i, j, tdim):
     return inv[c, i - 1, j]
 
 
+# Scalar helpers shared by every walk and move (all dimensions, the 2D move
+# included). ``dim`` (= tdim = gdim) selects the components: points are
+# ``(x0, x1, x2)`` and barycentrics ``(l0, l1, l2, l3)``, those beyond ``dim``
+# unused (zero). Scalars rather than small work arrays keep the hot loops in
+# registers. These helpers are plain functions (left to LLVM to inline):
+# inlining them at the Numba IR level into the inlined move loop made its
+# compilation run out of memory.
+
+
+@njit(cache=True, error_model="numpy")
+def _bary_s(x0, x1, x2, c, origin, inv, dim):
+    """Barycentric coordinates ``(l0, l1, l2, l3)`` of ``(x0, x1, x2)`` in cell ``c``."""
+    d0 = x0 - origin[c, 0]
+    if dim == 1:
+        l1 = inv[c, 0, 0] * d0
+        return 1.0 - l1, l1, 0.0, 0.0
+    d1 = x1 - origin[c, 1]
+    if dim == 2:
+        l1 = inv[c, 0, 0] * d0 + inv[c, 0, 1] * d1
+        l2 = inv[c, 1, 0] * d0 + inv[c, 1, 1] * d1
+        return 1.0 - (l1 + l2), l1, l2, 0.0
+    d2 = x2 - origin[c, 2]
+    l1 = inv[c, 0, 0] * d0 + inv[c, 0, 1] * d1 + inv[c, 0, 2] * d2
+    l2 = inv[c, 1, 0] * d0 + inv[c, 1, 1] * d1 + inv[c, 1, 2] * d2
+    l3 = inv[c, 2, 0] * d0 + inv[c, 2, 1] * d1 + inv[c, 2, 2] * d2
+    return 1.0 - (l1 + l2 + l3), l1, l2, l3
+
+
+@njit(cache=True, error_model="numpy")
+def _facet_grad_s(inv, c, i, dim):
+    """Gradient ``(g0, g1, g2)`` of barycentric coordinate ``i`` in cell ``c``."""
+    g1 = 0.0
+    g2 = 0.0
+    if i > 0:
+        g0 = inv[c, i - 1, 0]
+        if dim > 1:
+            g1 = inv[c, i - 1, 1]
+        if dim > 2:
+            g2 = inv[c, i - 1, 2]
+        return g0, g1, g2
+    g0 = -inv[c, 0, 0]
+    if dim > 1:
+        g1 = -inv[c, 0, 1]
+    if dim > 2:
+        g2 = -inv[c, 0, 2]
+    for k in range(1, dim):
+        g0 -= inv[c, k, 0]
+        if dim > 1:
+            g1 -= inv[c, k, 1]
+        if dim > 2:
+            g2 -= inv[c, k, 2]
+    return g0, g1, g2
+
+
+@njit(cache=True, error_model="numpy")
+def _project_s(x0, x1, x2, c, i, lam_i, inv, dim):
+    """Move ``(x0, x1, x2)`` onto the plane ``lambda_i = EPS_IN`` of cell ``c``.
+
+    Drops the overshoot ``lam_i < 0`` of a point beyond the facet (slip wall).
+    """
+    g0, g1, g2 = _facet_grad_s(inv, c, i, dim)
+    n2 = g0 * g0
+    if dim > 1:
+        n2 += g1 * g1
+    if dim > 2:
+        n2 += g2 * g2
+    f = (lam_i - EPS_IN) / n2
+    x0 -= f * g0
+    if dim > 1:
+        x1 -= f * g1
+    if dim > 2:
+        x2 -= f * g2
+    return x0, x1, x2
+
+
+@njit(cache=True, error_model="numpy")
+def _walk_s(x0, x1, x2, c, origin, inv, nbr, pshift, period, maxit, dim):
+    """Walk from cell ``c`` to the cell containing ``(x0, x1, x2)``.
+
+    Leaves each cell through its most negative barycentric facet. Walls
+    project the point back inside (slip), periodic facets wrap it. Returns
+    ``(x0, x1, x2, cell, status, l0, l1, l2, l3, s0, s1, s2)``: the point, its
+    cell and walk status, its barycentrics in that cell (on success) and the
+    periodic translation applied.
+    """
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    l0 = 0.0
+    l1 = 0.0
+    l2 = 0.0
+    l3 = 0.0
+    for _ in range(maxit):
+        l0, l1, l2, l3 = _bary_s(x0, x1, x2, c, origin, inv, dim)
+        best = 0
+        bv = l0
+        if l1 < bv:
+            bv = l1
+            best = 1
+        if dim > 1 and l2 < bv:
+            bv = l2
+            best = 2
+        if dim > 2 and l3 < bv:
+            bv = l3
+            best = 3
+        if bv >= -TOL:
+            return x0, x1, x2, c, ST_OK, l0, l1, l2, l3, s0, s1, s2
+        nb = nbr[c, best]
+        if nb == WALL:
+            x0, x1, x2 = _project_s(x0, x1, x2, c, best, bv, inv, dim)
+            continue
+        ps = pshift[c, best]
+        if ps != 0:  # periodic facet: wrap to the image
+            ax = abs(ps) - 1
+            d = -period[ax] if ps > 0 else period[ax]
+            if ax == 0:
+                x0 += d
+                s0 += d
+            elif ax == 1:
+                x1 += d
+                s1 += d
+            else:
+                x2 += d
+                s2 += d
+        if nb >= 0:
+            c = nb
+            continue
+        st = ST_OUTFLOW if nb == OUTFLOW else ST_REMOTE
+        return x0, x1, x2, c, st, l0, l1, l2, l3, s0, s1, s2
+    return x0, x1, x2, c, ST_FAIL, l0, l1, l2, l3, s0, s1, s2
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def walk(x, c, origin, inv, nbr, pshift, period, lam, shift, maxit):
     """Walk from cell ``c`` to the cell containing ``x`` (modified in place).
 
-    Walls project ``x`` back inside (slip), periodic facets wrap ``x`` (the
-    applied translation is added to ``shift``). Returns ``(cell, status)``;
-    on success ``lam`` holds the barycentric coordinates of ``x`` in ``cell``.
+    :func:`_walk_s` on arrays: walls project ``x`` back inside (slip),
+    periodic facets wrap ``x`` (the applied translation is added to
+    ``shift``). Returns ``(cell, status)``; on success ``lam`` holds the
+    barycentric coordinates of ``x`` in ``cell``.
     """
-    tdim = inv.shape[1]
-    for _ in range(maxit):
-        m = _bary(x, c, origin, inv, lam)
-        if m >= -TOL:
-            return c, ST_OK
-        # leave through the most negative facet; a wall there pushes x back inside
-        best = 0
-        bv = lam[0]
-        for i in range(1, tdim + 1):
-            if lam[i] < bv:
-                bv = lam[i]
-                best = i
-        wb = -1
-        if nbr[c, best] == WALL:
-            wb = best
-            best = -1
-        wv = bv
-        if best >= 0:
-            ps = pshift[c, best]
-            if ps != 0:
-                ax = abs(ps) - 1
-                d = -period[ax] if ps > 0 else period[ax]
-                x[ax] += d
-                shift[ax] += d
-            nb = nbr[c, best]
-            if nb >= 0:
-                c = nb
-                continue
-            if nb == OUTFLOW:
-                return c, ST_OUTFLOW
-            return c, ST_REMOTE
-        _project_to_facet(x, c, wb, wv, inv)
-    return c, ST_FAIL
+    dim = inv.shape[1]
+    x1 = x[1] if dim > 1 else 0.0
+    x2 = x[2] if dim > 2 else 0.0
+    x0, x1, x2, c, st, l0, l1, l2, l3, s0, s1, s2 = _walk_s(
+        x[0], x1, x2, c, origin, inv, nbr, pshift, period, maxit, dim
+    )
+    x[0] = x0
+    lam[0] = l0
+    lam[1] = l1
+    shift[0] += s0
+    if dim > 1:
+        x[1] = x1
+        lam[2] = l2
+        shift[1] += s1
+    if dim > 2:
+        x[2] = x2
+        lam[3] = l3
+        shift[2] += s2
+    return c, st
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -397,181 +502,6 @@ def theta_stage(
 
 
 @njit(cache=True, error_model="numpy")
-def _advect_p1_any(
-    x,
-    cell,
-    t_left,
-    aux,
-    acc,
-    stage,
-    status,
-    dt,
-    un,
-    un1,
-    theta,
-    q,
-    has_q,
-    courant,
-    gcourant,
-    nsub,
-    origin,
-    inv,
-    nbr,
-    pshift,
-    period,
-    hc,
-    dofs,
-    n_owned,
-):
-    """Fused X-IVAS move + locate of every unfinished particle (P1 velocity).
-
-    Heun (RK2) sub-steps along the streamline of ``un`` (``(ndofs, gdim)``),
-    each of local Courant number ``courant`` and at most ``gcourant``
-    times the inverse velocity-gradient norm of the cell (or ``dt/nsub``
-    when ``nsub > 0``); then, when ``theta > 0``, the fixed point of eq. (2.10)
-    with ``un1``. Along the path ``acc += int q dt`` (trapezoid per sub-step)
-    when ``has_q``. ``aux`` holds the accumulated displacement (stage 0) or
-    the anchor ``y`` (stage 1). Returns the number of sub-steps taken.
-    """
-    n = x.shape[0]
-    gdim = x.shape[1]
-    lam = np.empty(4)
-    lam2 = np.empty(4)
-    xp = np.empty(3)
-    xm = np.empty(3)
-    xn = np.empty(3)
-    v1 = np.empty(3)
-    v2 = np.empty(3)
-    sh = np.zeros(3)
-    y = np.empty(3)
-    wth = np.empty((6, 3))
-    nsteps = 0
-    for p in range(n):
-        if stage[p] == STAGE_DONE:
-            continue
-        c = cell[p]
-        for j in range(gdim):
-            xp[j] = x[p, j]
-        st = ST_OK
-        tl = t_left[p]
-        a = acc[p]
-        if stage[p] == STAGE_PATH:
-            # lam holds the barycentrics of xp in c (the last walk leaves them there)
-            _bary(xp, c, origin, inv, lam)
-            while tl > 1e-14 * dt:
-                _eval_vec(un, dofs, c, lam, v1, 1.0, False)
-                if nsub > 0:
-                    h = dt / nsub
-                    m = np.ceil(tl / h - 1e-9)
-                    if m < 1.0:
-                        m = 1.0
-                    h = tl / m
-                else:
-                    sp = 0.0
-                    for j in range(gdim):
-                        sp += v1[j] * v1[j]
-                    sp = np.sqrt(sp)
-                    rate = sp / (courant * hc[c])
-                    if gcourant > 0.0:
-                        gr = _grad_norm(un, dofs, c, inv) / gcourant
-                        if gr > rate:
-                            rate = gr
-                    m = np.ceil(tl * rate)
-                    if m < 1.0:
-                        m = 1.0
-                    h = tl / m
-                # midpoint (predictor) with retries when it leaves the local mesh
-                ok = False
-                for _r in range(12):
-                    for j in range(gdim):
-                        xm[j] = xp[j] + h * v1[j]
-                        sh[j] = 0.0
-                    cm, s = walk(xm, c, origin, inv, nbr, pshift, period, lam2, sh, 1000)
-                    if s == ST_OK:
-                        ok = True
-                        break
-                    if s == ST_OUTFLOW or s == ST_FAIL:
-                        break
-                    if c >= n_owned:  # REMOTE from a ghost cell: let the owner continue
-                        break
-                    h *= 0.5
-                if not ok:
-                    if s == ST_REMOTE and c >= n_owned:
-                        st = ST_GHOST
-                        break
-                    # outflow / fail / remote from an owned cell: explicit Euler step
-                    for j in range(gdim):
-                        xn[j] = xp[j] + h * v1[j]
-                    q0 = _eval_scalar(q, dofs, c, lam) if has_q else 0.0
-                    for j in range(gdim):
-                        sh[j] = 0.0
-                    cn, s = walk(xn, c, origin, inv, nbr, pshift, period, lam2, sh, 1000)
-                    if has_q:
-                        a += h * q0
-                    for j in range(gdim):
-                        aux[p, j] += xn[j] - sh[j] - xp[j]
-                        xp[j] = xn[j]
-                    tl -= h
-                    nsteps += 1
-                    c = cn
-                    lam, lam2 = lam2, lam
-                    st = s if s != ST_OK else (ST_GHOST if c >= n_owned else ST_OK)
-                    if st == ST_OK:
-                        continue
-                    break
-                _eval_vec(un, dofs, cm, lam2, v2, 1.0, False)
-                for j in range(gdim):
-                    xn[j] = xp[j] + 0.5 * h * (v1[j] + v2[j])
-                    sh[j] = 0.0
-                q0 = _eval_scalar(q, dofs, c, lam) if has_q else 0.0
-                cn, s = walk(xn, c, origin, inv, nbr, pshift, period, lam2, sh, 1000)
-                if has_q and s == ST_OK:
-                    a += 0.5 * h * (q0 + _eval_scalar(q, dofs, cn, lam2))
-                elif has_q:
-                    a += h * q0
-                for j in range(gdim):
-                    aux[p, j] += xn[j] - sh[j] - xp[j]
-                    xp[j] = xn[j]
-                tl -= h
-                nsteps += 1
-                c = cn
-                lam, lam2 = lam2, lam
-                if s != ST_OK:
-                    st = s
-                    break
-            if st == ST_OK:
-                tl = 0.0
-                if theta > 0.0:
-                    stage[p] = STAGE_THETA
-                    for j in range(gdim):
-                        aux[p, j] = xp[j] - theta * aux[p, j]
-                else:
-                    stage[p] = STAGE_DONE
-        if st == ST_OK and stage[p] == STAGE_THETA:
-            for j in range(gdim):
-                y[j] = aux[p, j]
-            its0 = int(tl)
-            c, st, its = theta_stage(
-                xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc,
-                its0, wth,
-            )  # fmt: skip
-            tl = float(its)  # in stage 1, t_left counts Newton iterations
-            for j in range(gdim):
-                aux[p, j] = y[j]
-            if st == ST_OK:
-                stage[p] = STAGE_DONE
-        if st == ST_OK and c >= n_owned:
-            st = ST_GHOST
-        for j in range(gdim):
-            x[p, j] = xp[j]
-        cell[p] = c
-        t_left[p] = tl
-        acc[p] = a
-        status[p] = st
-    return nsteps
-
-
-@njit(cache=True, error_model="numpy")
 def advect_p1(P, un, un1, q, S, M):
     """Fused X-IVAS move + locate of every unfinished particle (P1 velocity).
 
@@ -584,10 +514,9 @@ def advect_p1(P, un, un1, q, S, M):
     the anchor ``y`` (stage 1). Returns the number of sub-steps taken.
 
     ``P`` is a :class:`MoveState` (updated in place), ``S`` a
-    :class:`MoveParams`, ``M`` the :class:`MeshArrays`. Triangles in 2D take
-    a specialised path (scalar registers instead of small work arrays); it
-    performs the same floating-point operations in the same order, so both
-    paths give identical results.
+    :class:`MoveParams`, ``M`` the :class:`MeshArrays`. One loop
+    (:func:`_advect_p1_dim`) serves every dimension; triangles in 2D get it
+    compiled for the constant ``dim = 2``.
     """
     x, cell, t_left, aux, acc, stage, status = P
     dt, theta, courant, gcourant, nsub, has_q = S
@@ -603,103 +532,80 @@ def advect_p1(P, un, un1, q, S, M):
     )  # fmt: skip
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _bary_tri(x0, x1, c, origin, inv):
-    """:func:`_bary` for a triangle in 2D: ``(lambda_0, lambda_1, lambda_2)``."""
-    d0 = x0 - origin[c, 0]
-    d1 = x1 - origin[c, 1]
-    l1 = inv[c, 0, 0] * d0 + inv[c, 0, 1] * d1
-    l2 = inv[c, 1, 0] * d0 + inv[c, 1, 1] * d1
-    return 1.0 - (l1 + l2), l1, l2
+@njit(cache=True, error_model="numpy")
+def _eval_s(vals, j, d0, d1, d2, d3, l0, l1, l2, l3, dim):
+    """Component ``j`` of a P1 field ``vals (ndofs, k)`` at barycentrics ``l`` on dofs ``d``."""
+    v = l0 * vals[d0, j] + l1 * vals[d1, j]
+    if dim > 1:
+        v += l2 * vals[d2, j]
+    if dim > 2:
+        v += l3 * vals[d3, j]
+    return v
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _walk_tri(x0, x1, c, origin, inv, nbr, pshift, period, maxit):
-    """:func:`walk` for triangles in 2D on scalars.
-
-    Returns ``(x0, x1, cell, status, l0, l1, l2, shift0, shift1)``.
-    """
-    s0 = 0.0
-    s1 = 0.0
-    l0 = 0.0
-    l1 = 0.0
-    l2 = 0.0
-    for _ in range(maxit):
-        l0, l1, l2 = _bary_tri(x0, x1, c, origin, inv)
-        best = 0
-        bv = l0
-        if l1 < bv:
-            bv = l1
-            best = 1
-        if l2 < bv:
-            bv = l2
-            best = 2
-        if bv >= -TOL:
-            return x0, x1, c, ST_OK, l0, l1, l2, s0, s1
-        nb = nbr[c, best]
-        if nb == WALL:
-            if best == 0:
-                g0 = -inv[c, 0, 0] - inv[c, 1, 0]
-                g1 = -inv[c, 0, 1] - inv[c, 1, 1]
-            else:
-                g0 = inv[c, best - 1, 0]
-                g1 = inv[c, best - 1, 1]
-            f = (bv - EPS_IN) / (g0 * g0 + g1 * g1)
-            x0 -= f * g0
-            x1 -= f * g1
-            continue
-        ps = pshift[c, best]
-        if ps != 0:
-            ax = abs(ps) - 1
-            d = -period[ax] if ps > 0 else period[ax]
-            if ax == 0:
-                x0 += d
-                s0 += d
-            else:
-                x1 += d
-                s1 += d
-        if nb >= 0:
-            c = nb
-            continue
-        if nb == OUTFLOW:
-            return x0, x1, c, ST_OUTFLOW, l0, l1, l2, s0, s1
-        return x0, x1, c, ST_REMOTE, l0, l1, l2, s0, s1
-    return x0, x1, c, ST_FAIL, l0, l1, l2, s0, s1
+@njit(cache=True, error_model="numpy")
+def _eval_q(q, d0, d1, d2, d3, l0, l1, l2, l3, dim):
+    """A scalar P1 field ``q (ndofs,)`` at barycentrics ``l`` on dofs ``d``."""
+    v = l0 * q[d0] + l1 * q[d1]
+    if dim > 1:
+        v += l2 * q[d2]
+    if dim > 2:
+        v += l3 * q[d3]
+    return v
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _eval_tri(vals, j, d0, d1, d2, l0, l1, l2):
-    return l0 * vals[d0, j] + l1 * vals[d1, j] + l2 * vals[d2, j]
+@njit(cache=True, error_model="numpy")
+def _grad_norm_s(un, d0, d1, d2, d3, c, inv, dim):
+    """:func:`_grad_norm` of a P1 vector field ``un (ndofs, dim)`` on dofs ``d`` of cell ``c``."""
+    gs = 0.0
+    for k in range(dim):
+        for b in range(dim):
+            g = -inv[c, 0, b]
+            for i in range(1, dim):
+                g -= inv[c, i, b]
+            gv = un[d0, k] * g + un[d1, k] * inv[c, 0, b]
+            if dim > 1:
+                gv += un[d2, k] * inv[c, 1, b]
+            if dim > 2:
+                gv += un[d3, k] * inv[c, 2, b]
+            gs += gv * gv
+    return np.sqrt(gs)
 
 
 @njit(cache=True, error_model="numpy")
 def _advect_p1_tri(
-    x,
-    cell,
-    t_left,
-    aux,
-    acc,
-    stage,
-    status,
-    dt,
-    un,
-    un1,
-    theta,
-    q,
-    has_q,
-    courant,
-    gcourant,
-    nsub,
-    origin,
-    inv,
-    nbr,
-    pshift,
-    period,
-    hc,
-    dofs,
-    n_owned,
-):
-    """:func:`advect_p1` for triangles in 2D (scalars, no work arrays in the sub-steps)."""
+    x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
+    gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned,
+):  # fmt: skip
+    """:func:`advect_p1` for triangles in 2D (:func:`_advect_p1_dim` for a constant ``dim = 2``)."""
+    return _advect_p1_dim(
+        x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
+        gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, 2,
+    )  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy")
+def _advect_p1_any(
+    x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
+    gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned,
+):  # fmt: skip
+    """:func:`advect_p1` in any dimension (:func:`_advect_p1_dim` for a run-time ``dim``)."""
+    return _advect_p1_dim(
+        x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
+        gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, inv.shape[1],
+    )  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _advect_p1_dim(
+    x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
+    gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, dim,
+):  # fmt: skip
+    """The loop of :func:`advect_p1` (inlined: a constant ``dim`` folds its branches).
+
+    The sub-steps keep the particle, its velocities and barycentrics in
+    scalars (:func:`_walk_s`); the theta stage works on small arrays.
+    """
     n = x.shape[0]
     xp = np.empty(3)
     lam = np.empty(4)
@@ -712,20 +618,25 @@ def _advect_p1_tri(
             continue
         c = cell[p]
         p0 = x[p, 0]
-        p1 = x[p, 1]
+        p1 = x[p, 1] if dim > 1 else 0.0
+        p2 = x[p, 2] if dim > 2 else 0.0
         st = ST_OK
         tl = t_left[p]
         a = acc[p]
         if stage[p] == STAGE_PATH:
             a0 = aux[p, 0]
-            a1 = aux[p, 1]
-            l0, l1, l2 = _bary_tri(p0, p1, c, origin, inv)
+            a1 = aux[p, 1] if dim > 1 else 0.0
+            a2 = aux[p, 2] if dim > 2 else 0.0
+            # (l0..l3) are the barycentrics of the particle in c (each walk returns them)
+            l0, l1, l2, l3 = _bary_s(p0, p1, p2, c, origin, inv, dim)
             while tl > 1e-14 * dt:
                 d0 = dofs[c, 0]
                 d1 = dofs[c, 1]
-                d2 = dofs[c, 2]
-                v0 = _eval_tri(un, 0, d0, d1, d2, l0, l1, l2)
-                v1 = _eval_tri(un, 1, d0, d1, d2, l0, l1, l2)
+                d2 = dofs[c, 2] if dim > 1 else 0
+                d3 = dofs[c, 3] if dim > 2 else 0
+                v0 = _eval_s(un, 0, d0, d1, d2, d3, l0, l1, l2, l3, dim)
+                v1 = _eval_s(un, 1, d0, d1, d2, d3, l0, l1, l2, l3, dim) if dim > 1 else 0.0
+                v2 = _eval_s(un, 2, d0, d1, d2, d3, l0, l1, l2, l3, dim) if dim > 2 else 0.0
                 if nsub > 0:
                     h = dt / nsub
                     m = np.ceil(tl / h - 1e-9)
@@ -733,16 +644,14 @@ def _advect_p1_tri(
                         m = 1.0
                     h = tl / m
                 else:
-                    rate = np.sqrt(v0 * v0 + v1 * v1) / (courant * hc[c])
+                    sp = v0 * v0
+                    if dim > 1:
+                        sp += v1 * v1
+                    if dim > 2:
+                        sp += v2 * v2
+                    rate = np.sqrt(sp) / (courant * hc[c])
                     if gcourant > 0.0:
-                        gs = 0.0
-                        for k in range(2):
-                            for b in range(2):
-                                g = -inv[c, 0, b] - inv[c, 1, b]
-                                gv = un[d0, k] * g + un[d1, k] * inv[c, 0, b]
-                                gv += un[d2, k] * inv[c, 1, b]
-                                gs += gv * gv
-                        gr = np.sqrt(gs) / gcourant
+                        gr = _grad_norm_s(un, d0, d1, d2, d3, c, inv, dim) / gcourant
                         if gr > rate:
                             rate = gr
                     m = np.ceil(tl * rate)
@@ -756,10 +665,12 @@ def _advect_p1_tri(
                 m0 = 0.0
                 m1 = 0.0
                 m2 = 0.0
+                m3 = 0.0
                 for _r in range(12):
-                    _x0, _x1, cm, s, m0, m1, m2, _s0, _s1 = _walk_tri(
-                        p0 + h * v0, p1 + h * v1, c, origin, inv, nbr, pshift, period, 1000
-                    )
+                    _x0, _x1, _x2, cm, s, m0, m1, m2, m3, _s0, _s1, _s2 = _walk_s(
+                        p0 + h * v0, p1 + h * v1, p2 + h * v2, c, origin, inv, nbr, pshift,
+                        period, 1000, dim,
+                    )  # fmt: skip
                     if s == ST_OK:
                         ok = True
                         break
@@ -773,16 +684,19 @@ def _advect_p1_tri(
                         st = ST_GHOST
                         break
                     # outflow / fail / remote from an owned cell: explicit Euler step
-                    q0 = l0 * q[d0] + l1 * q[d1] + l2 * q[d2] if has_q else 0.0
-                    n0, n1, cn, s, l0, l1, l2, s0, s1 = _walk_tri(
-                        p0 + h * v0, p1 + h * v1, c, origin, inv, nbr, pshift, period, 1000
-                    )
+                    q0 = _eval_q(q, d0, d1, d2, d3, l0, l1, l2, l3, dim) if has_q else 0.0
+                    n0, n1, n2, cn, s, l0, l1, l2, l3, s0, s1, s2 = _walk_s(
+                        p0 + h * v0, p1 + h * v1, p2 + h * v2, c, origin, inv, nbr, pshift,
+                        period, 1000, dim,
+                    )  # fmt: skip
                     if has_q:
                         a += h * q0
                     a0 += n0 - s0 - p0
                     a1 += n1 - s1 - p1
+                    a2 += n2 - s2 - p2
                     p0 = n0
                     p1 = n1
+                    p2 = n2
                     tl -= h
                     nsteps += 1
                     c = cn
@@ -792,30 +706,30 @@ def _advect_p1_tri(
                     break
                 e0 = dofs[cm, 0]
                 e1 = dofs[cm, 1]
-                e2 = dofs[cm, 2]
-                w0 = _eval_tri(un, 0, e0, e1, e2, m0, m1, m2)
-                w1 = _eval_tri(un, 1, e0, e1, e2, m0, m1, m2)
-                q0 = l0 * q[d0] + l1 * q[d1] + l2 * q[d2] if has_q else 0.0
-                n0, n1, cn, s, l0, l1, l2, s0, s1 = _walk_tri(
-                    p0 + 0.5 * h * (v0 + w0),
-                    p1 + 0.5 * h * (v1 + w1),
-                    c,
-                    origin,
-                    inv,
-                    nbr,
-                    pshift,
-                    period,
-                    1000,
-                )
+                e2 = dofs[cm, 2] if dim > 1 else 0
+                e3 = dofs[cm, 3] if dim > 2 else 0
+                w0 = _eval_s(un, 0, e0, e1, e2, e3, m0, m1, m2, m3, dim)
+                w1 = _eval_s(un, 1, e0, e1, e2, e3, m0, m1, m2, m3, dim) if dim > 1 else 0.0
+                w2 = _eval_s(un, 2, e0, e1, e2, e3, m0, m1, m2, m3, dim) if dim > 2 else 0.0
+                q0 = _eval_q(q, d0, d1, d2, d3, l0, l1, l2, l3, dim) if has_q else 0.0
+                n0, n1, n2, cn, s, l0, l1, l2, l3, s0, s1, s2 = _walk_s(
+                    p0 + 0.5 * h * (v0 + w0), p1 + 0.5 * h * (v1 + w1), p2 + 0.5 * h * (v2 + w2),
+                    c, origin, inv, nbr, pshift, period, 1000, dim,
+                )  # fmt: skip
                 if has_q and s == ST_OK:
-                    q1 = l0 * q[dofs[cn, 0]] + l1 * q[dofs[cn, 1]] + l2 * q[dofs[cn, 2]]
-                    a += 0.5 * h * (q0 + q1)
+                    f0 = dofs[cn, 0]
+                    f1 = dofs[cn, 1]
+                    f2 = dofs[cn, 2] if dim > 1 else 0
+                    f3 = dofs[cn, 3] if dim > 2 else 0
+                    a += 0.5 * h * (q0 + _eval_q(q, f0, f1, f2, f3, l0, l1, l2, l3, dim))
                 elif has_q:
                     a += h * q0
                 a0 += n0 - s0 - p0
                 a1 += n1 - s1 - p1
+                a2 += n2 - s2 - p2
                 p0 = n0
                 p1 = n1
+                p2 = n2
                 tl -= h
                 nsteps += 1
                 c = cn
@@ -823,36 +737,47 @@ def _advect_p1_tri(
                     st = s
                     break
             aux[p, 0] = a0
-            aux[p, 1] = a1
+            if dim > 1:
+                aux[p, 1] = a1
+            if dim > 2:
+                aux[p, 2] = a2
             if st == ST_OK:
                 tl = 0.0
                 if theta > 0.0:
                     stage[p] = STAGE_THETA
                     aux[p, 0] = p0 - theta * aux[p, 0]
-                    aux[p, 1] = p1 - theta * aux[p, 1]
+                    if dim > 1:
+                        aux[p, 1] = p1 - theta * aux[p, 1]
+                    if dim > 2:
+                        aux[p, 2] = p2 - theta * aux[p, 2]
                 else:
                     stage[p] = STAGE_DONE
         if st == ST_OK and stage[p] == STAGE_THETA:
             xp[0] = p0
             xp[1] = p1
-            y[0] = aux[p, 0]
-            y[1] = aux[p, 1]
+            xp[2] = p2
+            for j in range(dim):
+                y[j] = aux[p, j]
             its0 = int(tl)
             c, st, its = theta_stage(
                 xp, c, y, theta, dt, un1, dofs, origin, inv, nbr, pshift, period, lam, sh, hc,
                 its0, wth,
             )  # fmt: skip
             tl = float(its)  # in stage 1, t_left counts Newton iterations
-            aux[p, 0] = y[0]
-            aux[p, 1] = y[1]
+            for j in range(dim):
+                aux[p, j] = y[j]
             p0 = xp[0]
             p1 = xp[1]
+            p2 = xp[2]
             if st == ST_OK:
                 stage[p] = STAGE_DONE
         if st == ST_OK and c >= n_owned:
             st = ST_GHOST
         x[p, 0] = p0
-        x[p, 1] = p1
+        if dim > 1:
+            x[p, 1] = p1
+        if dim > 2:
+            x[p, 2] = p2
         cell[p] = c
         t_left[p] = tl
         acc[p] = a
@@ -1397,7 +1322,7 @@ def _project_accumulate_tri(x, cells, vals, origin, inv, dofs, coords, hc, acc, 
         c = cells[p]
         x0 = x[p, 0]
         x1 = x[p, 1]
-        l0, l1, l2 = _bary_tri(x0, x1, c, origin, inv)
+        l0, l1, l2, _l3 = _bary_s(x0, x1, 0.0, c, origin, inv, 2)
         hcc = hc[c]
         for i in range(3):
             w = l0 if i == 0 else (l1 if i == 1 else l2)
