@@ -387,14 +387,12 @@ class LagrangianFlow(FlowSolver):
     def _path_substeps(self, vel: Any, dt: float) -> int:
         r"""Sub-steps ``m`` of the path integral of the source (same on every rank, collective).
 
-        A sub-step crosses at most ``method.substep_courant`` cells,
-        :math:`h \max_K |u|_K / h_K \le` ``substep_courant``, taken on the mesh
-        velocity: the source (the P1 pressure's gradient, the balanced gravity) is
-        constant on each cell, so one sample per cell crossed integrates it. The
-        turning of the path (``method.substep_gradient``) is the move's own concern:
-        :func:`pfem2x.particles.advect` sub-steps each of the ``m`` moves by it. ``m = 1``
-        with ``flow.pressure_step = "total"`` (the source is :math:`g` or nothing) and
-        without :attr:`path_source`.
+        The sub-step limits of the move, taken on the mesh velocity: a sub-step
+        crosses at most ``method.substep_courant`` cells,
+        :math:`h \max_K |u|_K / h_K \le` ``substep_courant``, and turns by at most
+        ``method.substep_gradient``, :math:`h \max_K |\nabla u|_K \le`
+        ``substep_gradient`` (0 disables). ``m = 1`` with ``flow.pressure_step =
+        "total"`` (the source is :math:`g` or nothing) and without :attr:`path_source`.
         """
         if self.gravity_only or not self.path_source:
             return 1  # no source, or a constant g: its integral needs no sub-steps
@@ -406,6 +404,11 @@ class LagrangianFlow(FlowSolver):
         cell_vals = vals[dofs]  # (cells, nodes, gdim)
         speed = np.linalg.norm(cell_vals, axis=2).max(axis=1)
         rate = float(np.max(speed / t.h[:nc], initial=0.0)) / meth.substep_courant
+        if meth.substep_gradient > 0.0:
+            dv = cell_vals[:, 1:, :] - cell_vals[:, :1, :]  # (cells, tdim, gdim)
+            grad = np.einsum("cia,cib->cab", dv, t.inv_map[:nc])
+            gn = np.sqrt(np.einsum("cab,cab->c", grad, grad))
+            rate = max(rate, float(np.max(gn, initial=0.0)) / meth.substep_gradient)
         rate = float(self.comm.allreduce(rate, op=MPI.MAX))
         return max(1, int(np.ceil(rate * dt - 1e-9)))
 
