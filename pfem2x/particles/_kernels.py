@@ -572,6 +572,8 @@ def _grad_norm_s(un, d0, d1, d2, d3, c, inv, dim):
     return np.sqrt(gs)
 
 
+# Deliberately two entry points of one loop: _advect_p1_tri passes dim as the literal 2 so
+# numba compiles the 2D loop without the other dimensions' branches; _advect_p1_any reads it.
 @njit(cache=True, error_model="numpy")
 def _advect_p1_tri(
     x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
