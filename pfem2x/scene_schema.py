@@ -354,6 +354,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
             doc="PFEM-2, two phases: project the particle velocity to the nodes weighted by "
             "the particle density (sum rho u / sum rho; for large density ratios)",
         ),
+        "affine": Key(
+            boolean,
+            False,
+            doc="PFEM-2: particles carry the mesh velocity gradient C_p of the end of each "
+            "step and the projection averages u_p + C_p (x_i - x_p) (APIC transfer)",
+        ),
         "explicit_pressure": Key(
             choice("consistent", "lagged"),
             "consistent",
@@ -486,6 +492,7 @@ FRAME_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
             "flow.pic_fraction_light",
             "flow.light_source",
             "flow.mass_weighted",
+            "flow.affine",
             "flow.extra_pass",
             "flow.explicit_pressure",
         ),

@@ -206,6 +206,7 @@ class FlowSection(Section):
     pic_fraction_light: float
     light_source: str
     mass_weighted: bool
+    affine: bool
     explicit_pressure: str
     pressure_step: str
     correction: str
