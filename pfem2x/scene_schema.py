@@ -238,6 +238,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "gravity": Key(boolean, False),
         "viscosity": Key(boolean, False),
         "two_phase": Key(boolean, False),
+        "surface_tension": Key(boolean, False),
     },
     "time": {
         "t_end": Key(number(0.0, lo_open=True), required=True),
@@ -378,6 +379,13 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "momentum = u -= dt M_rho^-1 int grad(dp).w with the lumped mass M_rho weighted "
             "by the current density",
         ),
+        "surface_tension": Key(
+            expr_text,
+            0.0,
+            doc="surface tension coefficient sigma >= 0 (a constant expression of params; "
+            "effects.surface_tension): balanced capillary force with the semi-implicit "
+            "Laplace-Beltrami term in the momentum operator",
+        ),
         "rtol": Key(number(0.0, 1.0, lo_open=True), 1e-8, doc="linear solver tolerance"),
         "quadrature_degree": Key(integer(1, 20), 4, doc="quadrature degree of the flow forms"),
     },
@@ -393,6 +401,7 @@ _DOCS = {
     "effects.gravity": "flow: the body force flow.gravity",
     "effects.viscosity": "flow: viscous stresses",
     "effects.two_phase": "flow: two phases with [phases.*]",
+    "effects.surface_tension": "flow: surface tension flow.surface_tension between the two phases",
     "time.t_end": "end time (solver units)",
     "time.dt": "fixed time step (exactly one of dt and courant)",
     "time.courant": "time step from Co = max|V| dt / H, H the shortest cell edge",
@@ -476,6 +485,7 @@ FRAME_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
             "method.preconditioner",
             "flow.interface_width",
             "flow.reinit_every",
+            "flow.surface_tension",
             "flow.quadrature_degree",
             "flow.inflow_velocity",
         ),

@@ -119,6 +119,7 @@ class EffectsSection(Section):
     gravity: bool
     viscosity: bool
     two_phase: bool
+    surface_tension: bool
 
 
 @dataclass(frozen=True)
@@ -209,6 +210,7 @@ class FlowSection(Section):
     explicit_pressure: str
     pressure_step: str
     correction: str
+    surface_tension: ExprText
     rtol: float
     quadrature_degree: int
 

@@ -60,6 +60,7 @@ from pfem2x import compat, fem
 from pfem2x.compat import PETSc
 from pfem2x.mesh import Domain
 from pfem2x.physics.flow.balanced import JumpForce
+from pfem2x.physics.flow.capillary import CapillaryForce
 from pfem2x.physics.flow.interface import InterfaceGeometry
 from pfem2x.physics.flow.problem import FlowSolver
 from pfem2x.physics.flow.projection import PressureProjection
@@ -116,12 +117,25 @@ class EulerianFlow(FlowSolver):
             fg = self.jump.force(rho, g)
         else:
             fg = rho * g if np.any(pr.gravity) else None  # no body force without gravity
+        # surface tension: the balanced capillary force (pfem2x.physics.flow.capillary)
+        # on the zero iso-line of phi, weighted by the smoothed Heaviside
+        #: the capillary force (None without effects.surface_tension)
+        self.capillary: CapillaryForce | None = None
+        if pr.two_phase and pr.surface_tension > 0.0:
+            self.capillary = CapillaryForce(
+                self.Q, self.interface, pr.surface_tension, self.eps + 2.0 * self.H, self.H
+            )
+            self.capillary.update(self.phi.x.array, self.cell_vol)
+            fc = self.capillary.force(H)
+            fg = fc if fg is None else fg + fc
         self._f_grav = fg
         self._use_projection(
             PressureProjection(
                 self.V, self.Q, self.gdim, rho, fg, dxq, self.dt_c, self._bcs_u, self._bcs_p,
                 pr.correction, pr.incremental, scene.method.preconditioner, pr.rtol,
-                self.timer, force_in_projection=self.jump is not None and not pr.incremental,
+                self.timer,
+                force_in_projection=(self.jump is not None or self.capillary is not None)
+                and not pr.incremental,
             )
         )  # fmt: skip
         if self.projection.force_in_projection:
@@ -133,7 +147,7 @@ class EulerianFlow(FlowSolver):
         self._update_inflow(0.0)
         compat.set_bc(compat.petsc_vec(self.u), self._bcs_u)
         self.u.x.scatter_forward()
-        if np.any(pr.gravity):
+        if np.any(pr.gravity) or self.capillary is not None:
             self.projection.initial_pressure(self.p)
         self.volume0 = self.phase_volumes()
 
@@ -173,6 +187,8 @@ class EulerianFlow(FlowSolver):
         L_m = (rho / dt * ufl.dot(un, w) + p_n * ufl.div(w)) * dxq
         if fg is not None:
             L_m = L_m + ufl.dot(fg, w) * dxq
+        if self.capillary is not None:  # the semi-implicit Laplace-Beltrami term
+            a_m = a_m + self.capillary.implicit_form(v, w, dt) * dxq
         if self.scene.method.supg:
             unorm = self._unorm()
             nu = mu / rho
@@ -222,7 +238,7 @@ class EulerianFlow(FlowSolver):
             self.A_l = fem.assemble_matrix(self.a_l, [], self.A_l)
             if self.ls_solver is None:
                 self.ls_solver = fem.LinearSolver(self.A_l, "gmres", rtol=self.problem.rtol)
-                if self.jump is not None:  # start from phi^n: a fluid at rest keeps it exactly
+                if self.jump is not None or self.capillary is not None:  # start from phi^n: rest
                     self.ls_solver.ksp.setInitialGuessNonzero(True)
             else:
                 self.ls_solver.set_operator(self.A_l)
@@ -239,6 +255,8 @@ class EulerianFlow(FlowSolver):
         self._update_phase()
         if self.jump is not None:
             self.jump.update(self.phi.x.array)
+        if self.capillary is not None:
+            self.capillary.update(self.phi.x.array, self.cell_vol)
 
     def _predict(self, t: float, dt: float) -> None:
         with self.timer("assembly"):
