@@ -537,7 +537,10 @@ def _check_expressions(scene: Scene) -> None:
                 raise SceneError(
                     f"flow.surface_tension: expected a constant (of params), got {sigma.text!r}"
                 )
-            sv = sigma.value()
+            try:
+                sv = sigma.value()
+            except ArithmeticError as exc:
+                raise SceneError(f"flow.surface_tension: cannot be evaluated ({exc})") from None
             if not math.isfinite(sv) or sv < 0.0:
                 raise SceneError(f"flow.surface_tension: must be finite and >= 0, got {sv:g}")
             for k in ("initial_velocity", "inflow_velocity", "exact_velocity"):

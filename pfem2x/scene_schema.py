@@ -329,6 +329,13 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "inflow_velocity": Key(list_of(expr_text, 1, 3), doc="velocity on inflow sides"),
         "interface_width": Key(number(0.0, lo_open=True), 1.5, doc="smoothing half-width / H"),
         "reinit_every": Key(integer(0), 1, doc="level-set redistancing every N steps (0: never)"),
+        "volume_correction": Key(
+            boolean,
+            False,
+            doc="level set: after each re-distancing, shift phi by a constant so that the "
+            "volume of phase 1 is its initial volume (the shift: volume defect / interface "
+            "length, twice)",
+        ),
         "max_speed": Key(expr_text, 0.0, doc="|u| above this is divergence (0: no check)"),
         "extra_pass": Key(boolean, False, doc="PFEM-2: second pass with theta = 1/2"),
         "pic_fraction": Key(
@@ -485,6 +492,7 @@ FRAME_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
             "method.preconditioner",
             "flow.interface_width",
             "flow.reinit_every",
+            "flow.volume_correction",
             "flow.surface_tension",
             "flow.quadrature_degree",
             "flow.inflow_velocity",

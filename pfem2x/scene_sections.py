@@ -201,6 +201,7 @@ class FlowSection(Section):
     inflow_velocity: tuple[ExprText, ...] | None
     interface_width: float
     reinit_every: int
+    volume_correction: bool
     max_speed: ExprText
     extra_pass: bool
     pic_fraction: float

@@ -39,6 +39,8 @@ key                            effect in this frame
 ``method.preconditioner``      pressure solve (cg); the predictor and level set use GMRES/ILU
 ``flow.interface_width``       smoothed Heaviside half-width / H (density, viscosity)
 ``flow.reinit_every``          re-distancing every N steps (0: never)
+``flow.volume_correction``     after re-distancing: shift phi to the initial volume
+``flow.surface_tension``       surface tension (:mod:`pfem2x.physics.flow.capillary`)
 ``flow.pressure_step``         ``increment``: :math:`-\nabla p^n` in the predictor; ``total``
 ``flow.correction``            ``velocity`` (:math:`M^{-1}\rho^{-1}`) or ``momentum``
 ``flow.rtol``                  tolerance of every linear solve
@@ -212,6 +214,22 @@ class EulerianFlow(FlowSolver):
         """Geometric re-distancing: signed distance to the current zero iso-line (clipped)."""
         self.interface.redistance(self.phi, self._keep)
 
+    def _correct_volume(self) -> None:
+        """Shift phi by a constant: phase 1 gets its initial volume back (collective).
+
+        The shift is the volume defect over the interface length (a uniform
+        normal displacement of a signed distance), applied twice.
+        """
+        itf, arr = self.interface, self.phi.x.array
+        v0 = self.volume0[self.problem.phases[0][0]]
+        for _ in range(2):
+            segs = itf.segments(arr)
+            length = np.sum(np.linalg.norm(segs[:, 1] - segs[:, 0], axis=1)) if len(segs) else 0.0
+            length = float(self.comm.allreduce(length, op=compat.MPI.SUM))
+            if length <= 0.0:
+                return
+            arr += (v0 - itf.positive_volume(arr, self.cell_vol)) / length
+
     def phase_volumes(self) -> dict[str, float]:
         names = [p[0] for p in self.problem.phases]
         total = float(self.comm.allreduce(self.cell_vol.sum(), op=compat.MPI.SUM))
@@ -252,6 +270,8 @@ class EulerianFlow(FlowSolver):
         if pe and (self.steps_done + 1) % pe == 0:
             with self.timer("reinit"):
                 self.redistance()
+                if self.problem.volume_correction:
+                    self._correct_volume()
         self._update_phase()
         if self.jump is not None:
             self.jump.update(self.phi.x.array)

@@ -106,6 +106,7 @@ class FlowProblem:
         self.max_speed = scene.expr("flow", "max_speed").value()
         self.interface_width = float(fl.interface_width)
         self.reinit_every = int(fl.reinit_every)
+        self.volume_correction = bool(fl.volume_correction)
         self.rtol = float(fl.rtol)
         self.correction = str(fl.correction)
         self.incremental = fl.pressure_step == "increment"
