@@ -415,7 +415,8 @@ class StaticDropCase(Case):
     interface on either side (``h`` the shortest edge). Diagnostics:
     ``pressure_jump``, ``pressure_jump_rel_error``. Metrics: both at the end,
     ``spurious_speed_max`` (max ``|u|`` over the run) and
-    ``spurious_capillary_number`` = max viscosity x ``spurious_speed_max`` / sigma.
+    ``spurious_capillary_number`` = max viscosity x ``spurious_speed_max`` / sigma, and
+    both at the last step (``spurious_speed_final``, ``spurious_capillary_number_final``).
     """
 
     name = "static-drop"
@@ -450,8 +451,10 @@ class StaticDropCase(Case):
             "pressure_jump_rel_error": history[-1]["pressure_jump_rel_error"],
             "spurious_speed_max": smax,
         }
+        out["spurious_speed_final"] = history[-1]["speed_max"]
         if self.sigma > 0:
             out["spurious_capillary_number"] = self.mu * smax / self.sigma
+            out["spurious_capillary_number_final"] = self.mu * history[-1]["speed_max"] / self.sigma
         return out
 
 

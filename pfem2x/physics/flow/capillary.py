@@ -28,9 +28,12 @@ balances it to round-off (a circle with a uniform curvature stays at rest).
 
 Curvature of a segment: a weighted least-squares circle through the end
 points of the segments within ``fit_radius`` cells of its midpoint, in the
-segment's frame :math:`(s, \eta)` (tangent, normal): :math:`\eta = A(s^2 +
-\eta^2) + Bs + D`, :math:`\kappa = 2A/\sqrt{1 + B^2 - 4AD}` (exact for a
-circle, well conditioned for a straight line).
+frame :math:`(s, \eta)` of the cell's gradient (tangent, normal): :math:`\eta =
+A(s^2 + \eta^2) + Bs + D`, :math:`\kappa = 2A/\sqrt{1 + B^2 - 4AD}` (exact
+for a circle, well conditioned for a straight line); then averaged along the
+interface over the same radius (:func:`smooth_along`: the saw-tooth
+capillary waves of the P1 iso-line at h = 1/80 lowered the rising bubble's
+circularity by 3 % without).
 
 Semi-implicit (Bänsch 2001, Hysing 2006): the capillary force at the new
 time level is :math:`\sigma\int_\Gamma\nabla_\Gamma x^{n+1}:\nabla_\Gamma v`
@@ -66,6 +69,7 @@ __all__ = [
     "capillary_dt_limit",
     "oriented_segments",
     "segment_curvature",
+    "smooth_along",
 ]
 
 
@@ -179,6 +183,27 @@ def segment_curvature(
         den = np.sqrt(np.maximum(1.0 + B * B - 4.0 * A * D, 1e-300))
         kappa[sl] = np.where(enough, 2.0 * A / den, 0.0)
     return kappa
+
+
+def smooth_along(segs: np.ndarray, values: np.ndarray, radius: float) -> np.ndarray:
+    """Kernel average of per-segment ``values`` over the segments within ``radius``.
+
+    Weights: :math:`(1 - d^2/r^2)^2` of the midpoint distance times the segment
+    length (a quadrature along the curve).
+    """
+    m = len(segs)
+    if m == 0:
+        return values.copy()
+    mid = segs.mean(axis=1)
+    length = np.linalg.norm(segs[:, 1] - segs[:, 0], axis=1)
+    out = np.empty(m)
+    chunk = max(1, 4_000_000 // m)
+    for k in range(0, m, chunk):
+        d = mid[k : k + chunk, None, :] - mid[None, :, :]
+        r2 = np.einsum("cpj,cpj->cp", d, d) / radius**2
+        w = np.where(r2 < 1.0, (1.0 - r2) ** 2, 0.0) * length[None, :]
+        out[k : k + chunk] = (w @ values) / np.maximum(w.sum(axis=1), 1e-300)
+    return out
 
 
 def closest_segment(points: np.ndarray, segs: np.ndarray, chunk: int = 2_000_000) -> np.ndarray:
@@ -323,7 +348,9 @@ class CapillaryForce:
         parts = itf.comm.allgather(np.concatenate([segs, nrm[:, None, :]], axis=1))
         both = np.concatenate([p for p in parts if len(p)] or [np.zeros((0, 3, 2))])
         allsegs = both[:, :2]
-        kap_all = segment_curvature(allsegs, self.radius, both[:, 2])
+        kap_all = smooth_along(
+            allsegs, segment_curvature(allsegs, self.radius, both[:, 2]), self.radius
+        )
         # the band: nodes of cells with a sign change and nodes within `band`
         hpos = phi >= 0.0
         hc = hpos[itf.dofmap]
