@@ -204,6 +204,9 @@ def test_static_drop_ranks_agree(shared_tmp):
     sc = load_scene("static-drop", variant="small", overrides=["time.t_end=0.05"])
     ra = Simulation(sc, shared_tmp / "world", comm=comm, quiet=True).run()
     rb = Simulation(sc, shared_tmp / f"self{comm.rank}", comm=MPI.COMM_SELF, quiet=True).run()
+    # solver tolerance (flow.rtol = 1e-10) on different partitions: measured 1e-11 relative
+    # in the pressure jump, 6e-7 in the (spurious, round-off driven) speed over 20 steps
     for ha, hb in zip(ra.history, rb.history, strict=True):
-        for k in ("pressure_jump", "kinetic_energy", "volume_drop"):
-            assert ha[k] == pytest.approx(hb[k], rel=1e-7, abs=1e-12), k
+        assert ha["pressure_jump"] == pytest.approx(hb["pressure_jump"], rel=1e-8)
+        assert ha["volume_drop"] == pytest.approx(hb["volume_drop"], rel=1e-10)
+        assert ha["speed_max"] == pytest.approx(hb["speed_max"], rel=1e-4, abs=1e-12)
