@@ -482,11 +482,6 @@ def _check_flow(s: dict[str, dict[str, Any]]) -> None:
     if s["effects"]["surface_tension"]:
         if not s["effects"]["two_phase"]:
             raise SceneError("effects.surface_tension: needs effects.two_phase = true")
-        if frame == "lagrangian":
-            raise SceneError(
-                "effects.surface_tension: not available in the lagrangian flow frame yet "
-                "(method.frame = 'eulerian')"
-            )
 
 
 #: ``scene.case`` → the ``params`` its diagnostics need.

@@ -458,6 +458,7 @@ FLOW_COMMON_KEYS = (
     "flow.walls",
     *(f"flow.{s}" for s in FLOW_SIDES),
     *(f"flow.{k}" for k in ("max_speed", "pressure_step", "correction", "rtol")),
+    "flow.surface_tension",
 )
 _PARTICLES = (
     "method.particles_per_cell",
@@ -493,7 +494,6 @@ FRAME_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
             "flow.interface_width",
             "flow.reinit_every",
             "flow.volume_correction",
-            "flow.surface_tension",
             "flow.quadrature_degree",
             "flow.inflow_velocity",
         ),
