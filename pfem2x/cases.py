@@ -1,4 +1,4 @@
-"""Case diagnostics of the paper's scalar test cases (``scene.case``).
+r"""Case diagnostics of the paper's scalar test cases (``scene.case``).
 
 - ``zalesak``: area of the disk ``{T >= 0.5}``, its change, the area of the
   symmetric difference with the exact shape and the L1 error of the field
@@ -13,6 +13,11 @@
   (:data:`MARTIN_MOYCE_FRONT`, :data:`MARTIN_MOYCE_HEIGHT`).
 - ``rayleigh-taylor`` (flow): tip errors against interFoam's tips
   (:data:`INTERFOAM_RT_TIPS`), for the study plots.
+- ``rising-bubble`` (flow): centroid, rise velocity and circularity of the
+  bubble (the phase with a region) over time, against Hysing et al.'s (2009)
+  values (:data:`HYSING_BUBBLE`).
+- ``static-drop`` (flow): the pressure jump across a drop at rest against
+  Laplace's :math:`\sigma/R` and the spurious currents.
 """
 
 from __future__ import annotations
@@ -30,8 +35,11 @@ __all__ = [
     "MARTIN_MOYCE_HEIGHT",
     "Case",
     "DamBreakCase",
+    "HYSING_BUBBLE",
     "INTERFOAM_RT_TIPS",
     "RayleighTaylorCase",
+    "RisingBubbleCase",
+    "StaticDropCase",
     "make_case",
     "subcell_points",
 ]
@@ -334,7 +342,123 @@ class RayleighTaylorCase(Case):
         return out
 
 
+#: Hysing et al. (2009), "Quantitative benchmark computations of two-dimensional
+#: bubble dynamics", Int. J. Numer. Meth. Fluids 60:1259-1288, the reference
+#: group TP2D (finest grid) of their tables of test case 1 (rho 1000 / 100,
+#: mu 10 / 1, g = 0.98, sigma = 24.5): minimum circularity, maximum rise
+#: velocity, centroid height at t = 3. Keyed by the scene's ``params.case`` (1).
+#: Also in docs/data/rising-bubble/hysing2009.csv (with the times of the extrema).
+HYSING_BUBBLE = {
+    1: {
+        "circularity_min": 0.9013,
+        "rise_velocity_max": 0.2417,
+        "centroid_y_final": 1.0813,
+    },
+}
+
+
+class RisingBubbleCase(Case):
+    """Hysing et al.'s (2009) rising bubble: centroid, rise velocity, circularity.
+
+    The bubble is the phase with a region (phase 1, the level set's / the
+    interface function's positive side); see
+    :func:`pfem2x.physics.flow.capillary.bubble_geometry`. Diagnostics:
+    ``centroid_y``, ``rise_velocity``, ``circularity`` (and ``centroid_x``,
+    ``bubble_area``). Metrics: the three as ``[[t, value]]`` lists,
+    ``centroid_y_final``, ``rise_velocity_max`` (+ ``_time``),
+    ``circularity_min`` (+ ``_time``) and, when the scene's ``params.case``
+    names a case of :data:`HYSING_BUBBLE` and the run reaches ``t = 3``, the
+    relative errors ``*_rel_error`` against it.
+    """
+
+    name = "rising-bubble"
+
+    def __init__(self, solver: Any):
+        self.ref = HYSING_BUBBLE.get(int(solver.scene.params.get("case", 0)))
+
+    def diagnostics(self, solver: Any, t: float) -> dict[str, float]:
+        from pfem2x.physics.flow.capillary import bubble_geometry  # noqa: PLC0415
+
+        phi = solver.interface_function()
+        uy = solver.u.x.array.reshape(-1, solver.gdim)[:, 1]
+        g = bubble_geometry(solver.comm, solver.interface, phi, uy, solver.cell_vol)
+        return {k: g[k] for k in ("centroid_y", "rise_velocity", "circularity", "centroid_x",
+                                  "bubble_area")}  # fmt: skip
+
+    def metrics(self, history: list[dict[str, float]]) -> dict[str, Any]:
+        if not history or "centroid_y" not in history[0]:
+            return {}
+        t = np.array([h["t"] for h in history])
+        out: dict[str, Any] = {}
+        for key in ("centroid_y", "rise_velocity", "circularity"):
+            out[key] = [[h["t"], h[key]] for h in history]
+        vel = np.array([h["rise_velocity"] for h in history])
+        circ = np.array([h["circularity"] for h in history])
+        out["centroid_y_final"] = history[-1]["centroid_y"]
+        k = int(np.argmax(vel))
+        out["rise_velocity_max"], out["rise_velocity_max_time"] = float(vel[k]), float(t[k])
+        k = int(np.argmin(circ))
+        out["circularity_min"], out["circularity_min_time"] = float(circ[k]), float(t[k])
+        if self.ref is not None and t[-1] >= 3.0 - 1e-9:
+            for key in ("centroid_y_final", "rise_velocity_max", "circularity_min"):
+                out[f"{key}_rel_error"] = abs(out[key] - self.ref[key]) / self.ref[key]
+        return out
+
+
+class StaticDropCase(Case):
+    r"""A drop at rest: pressure jump against Laplace's :math:`\sigma/R`, spurious currents.
+
+    Needs ``params.R`` (the drop radius). The pressure inside / outside is the
+    mean nodal pressure of the owned nodes farther than ``3 h`` from the
+    interface on either side (``h`` the shortest edge). Diagnostics:
+    ``pressure_jump``, ``pressure_jump_rel_error``. Metrics: both at the end,
+    ``spurious_speed_max`` (max ``|u|`` over the run) and
+    ``spurious_capillary_number`` = max viscosity x ``spurious_speed_max`` / sigma, and
+    both at the last step (``spurious_speed_final``, ``spurious_capillary_number_final``).
+    """
+
+    name = "static-drop"
+
+    def __init__(self, solver: Any):
+        self.R = float(solver.scene.params["R"])
+        self.sigma = float(solver.problem.surface_tension)
+        self.mu = max(ph[2] for ph in solver.problem.phases)
+        self.h = float(solver.domain.min_h())
+        self.n_nodes = solver.Q.dofmap.index_map.size_local
+
+    def diagnostics(self, solver: Any, t: float) -> dict[str, float]:
+        phi = solver.interface_function()[: self.n_nodes]
+        p = solver.p.x.array[: self.n_nodes]
+        inside, outside = phi > 3.0 * self.h, phi < -3.0 * self.h
+        loc = np.array([p[inside].sum(), inside.sum(), p[outside].sum(), outside.sum()], float)
+        tot = np.zeros(4)
+        solver.comm.Allreduce(loc, tot, op=MPI.SUM)
+        jump = tot[0] / max(tot[1], 1.0) - tot[2] / max(tot[3], 1.0)
+        ref = self.sigma / self.R
+        return {
+            "pressure_jump": float(jump),
+            "pressure_jump_rel_error": float(abs(jump - ref) / ref) if ref > 0 else 0.0,
+        }
+
+    def metrics(self, history: list[dict[str, float]]) -> dict[str, Any]:
+        if not history or "pressure_jump" not in history[-1]:
+            return {}
+        smax = max(h["speed_max"] for h in history)
+        out: dict[str, Any] = {
+            "pressure_jump": history[-1]["pressure_jump"],
+            "pressure_jump_rel_error": history[-1]["pressure_jump_rel_error"],
+            "spurious_speed_max": smax,
+        }
+        out["spurious_speed_final"] = history[-1]["speed_max"]
+        if self.sigma > 0:
+            out["spurious_capillary_number"] = self.mu * smax / self.sigma
+            out["spurious_capillary_number_final"] = self.mu * history[-1]["speed_max"] / self.sigma
+        return out
+
+
 _CASES = {
+    "rising-bubble": RisingBubbleCase,
+    "static-drop": StaticDropCase,
     "rayleigh-taylor": RayleighTaylorCase,
     "zalesak": ZalesakCase,
     "gaussian-hill": GaussianHillCase,

@@ -479,12 +479,25 @@ def _check_flow(s: dict[str, dict[str, Any]]) -> None:
         raise SceneError("mesh.periodic: periodic flow is not available yet")
     if "inflow" in sides.values() and fl["inflow_velocity"] is None:
         raise SceneError("flow.inflow_velocity: required with an inflow side")
+    if s["effects"]["surface_tension"]:
+        if not s["effects"]["two_phase"]:
+            raise SceneError("effects.surface_tension: needs effects.two_phase = true")
 
 
 #: ``scene.case`` → the ``params`` its diagnostics need.
-CASE_PARAMS = {"gaussian-hill": ("x0", "y0", "sigma", "kappa"), "dam-break": ("a", "n2", "g")}
+CASE_PARAMS = {
+    "gaussian-hill": ("x0", "y0", "sigma", "kappa"),
+    "dam-break": ("a", "n2", "g"),
+    "static-drop": ("R",),
+}
 #: ``scene.case`` → the ``scene.physics`` whose solution its diagnostics measure.
-CASE_PHYSICS = {"zalesak": "transport", "gaussian-hill": "transport", "dam-break": "flow"}
+CASE_PHYSICS = {
+    "zalesak": "transport",
+    "gaussian-hill": "transport",
+    "dam-break": "flow",
+    "rising-bubble": "flow",
+    "static-drop": "flow",
+}
 
 
 def _check_case(s: dict[str, dict[str, Any]], params: Mapping[str, float]) -> None:
@@ -501,8 +514,8 @@ def _check_case(s: dict[str, dict[str, Any]], params: Mapping[str, float]) -> No
             raise SceneError("transport.exact: required by scene.case = 'zalesak'")
         if s["mesh"]["kind"] in ("interval", "box"):
             raise SceneError("scene.case: 'zalesak' needs a 2D mesh")
-    if case == "dam-break" and not s["effects"]["two_phase"]:
-        raise SceneError("scene.case: 'dam-break' needs effects.two_phase = true")
+    if case in ("dam-break", "rising-bubble", "static-drop") and not s["effects"]["two_phase"]:
+        raise SceneError(f"scene.case: {case!r} needs effects.two_phase = true")
 
 
 def _check_expressions(scene: Scene) -> None:
@@ -514,6 +527,17 @@ def _check_expressions(scene: Scene) -> None:
             fl = scene.flow
             for k in ("velocity_scale", "time_factor", "max_speed"):
                 scene.expr("flow", k)
+            sigma = scene.expr("flow", "surface_tension")
+            if not sigma.constant:
+                raise SceneError(
+                    f"flow.surface_tension: expected a constant (of params), got {sigma.text!r}"
+                )
+            try:
+                sv = sigma.value()
+            except ArithmeticError as exc:
+                raise SceneError(f"flow.surface_tension: cannot be evaluated ({exc})") from None
+            if not math.isfinite(sv) or sv < 0.0:
+                raise SceneError(f"flow.surface_tension: must be finite and >= 0, got {sv:g}")
             for k in ("initial_velocity", "inflow_velocity", "exact_velocity"):
                 v = getattr(fl, k)
                 if v is not None:

@@ -238,6 +238,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "gravity": Key(boolean, False),
         "viscosity": Key(boolean, False),
         "two_phase": Key(boolean, False),
+        "surface_tension": Key(boolean, False),
     },
     "time": {
         "t_end": Key(number(0.0, lo_open=True), required=True),
@@ -328,6 +329,13 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "inflow_velocity": Key(list_of(expr_text, 1, 3), doc="velocity on inflow sides"),
         "interface_width": Key(number(0.0, lo_open=True), 1.5, doc="smoothing half-width / H"),
         "reinit_every": Key(integer(0), 1, doc="level-set redistancing every N steps (0: never)"),
+        "volume_correction": Key(
+            boolean,
+            False,
+            doc="level set: after each re-distancing, shift phi by a constant so that the "
+            "volume of phase 1 is its initial volume (the shift: volume defect / interface "
+            "length, twice)",
+        ),
         "max_speed": Key(expr_text, 0.0, doc="|u| above this is divergence (0: no check)"),
         "extra_pass": Key(boolean, False, doc="PFEM-2: second pass with theta = 1/2"),
         "pic_fraction": Key(
@@ -384,6 +392,13 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "momentum = u -= dt M_rho^-1 int grad(dp).w with the lumped mass M_rho weighted "
             "by the current density",
         ),
+        "surface_tension": Key(
+            expr_text,
+            0.0,
+            doc="surface tension coefficient sigma >= 0 (a constant expression of params; "
+            "effects.surface_tension): balanced capillary force with the semi-implicit "
+            "Laplace-Beltrami term in the momentum operator",
+        ),
         "rtol": Key(number(0.0, 1.0, lo_open=True), 1e-8, doc="linear solver tolerance"),
         "quadrature_degree": Key(integer(1, 20), 4, doc="quadrature degree of the flow forms"),
     },
@@ -399,6 +414,7 @@ _DOCS = {
     "effects.gravity": "flow: the body force flow.gravity",
     "effects.viscosity": "flow: viscous stresses",
     "effects.two_phase": "flow: two phases with [phases.*]",
+    "effects.surface_tension": "flow: surface tension flow.surface_tension between the two phases",
     "time.t_end": "end time (solver units)",
     "time.dt": "fixed time step (exactly one of dt and courant)",
     "time.courant": "time step from Co = max|V| dt / H, H the shortest cell edge",
@@ -448,6 +464,7 @@ FLOW_COMMON_KEYS = (
     "flow.walls",
     *(f"flow.{s}" for s in FLOW_SIDES),
     *(f"flow.{k}" for k in ("max_speed", "pressure_step", "correction", "rtol")),
+    "flow.surface_tension",
 )
 _PARTICLES = (
     "method.particles_per_cell",
@@ -482,6 +499,7 @@ FRAME_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
             "method.preconditioner",
             "flow.interface_width",
             "flow.reinit_every",
+            "flow.volume_correction",
             "flow.quadrature_degree",
             "flow.inflow_velocity",
         ),

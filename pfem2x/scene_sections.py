@@ -119,6 +119,7 @@ class EffectsSection(Section):
     gravity: bool
     viscosity: bool
     two_phase: bool
+    surface_tension: bool
 
 
 @dataclass(frozen=True)
@@ -200,6 +201,7 @@ class FlowSection(Section):
     inflow_velocity: tuple[ExprText, ...] | None
     interface_width: float
     reinit_every: int
+    volume_correction: bool
     max_speed: ExprText
     extra_pass: bool
     pic_fraction: float
@@ -210,6 +212,7 @@ class FlowSection(Section):
     explicit_pressure: str
     pressure_step: str
     correction: str
+    surface_tension: ExprText
     rtol: float
     quadrature_degree: int
 

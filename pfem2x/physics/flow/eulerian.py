@@ -39,6 +39,8 @@ key                            effect in this frame
 ``method.preconditioner``      pressure solve (cg); the predictor and level set use GMRES/ILU
 ``flow.interface_width``       smoothed Heaviside half-width / H (density, viscosity)
 ``flow.reinit_every``          re-distancing every N steps (0: never)
+``flow.volume_correction``     after re-distancing: shift phi to the initial volume
+``flow.surface_tension``       surface tension (:mod:`pfem2x.physics.flow.capillary`)
 ``flow.pressure_step``         ``increment``: :math:`-\nabla p^n` in the predictor; ``total``
 ``flow.correction``            ``velocity`` (:math:`M^{-1}\rho^{-1}`) or ``momentum``
 ``flow.rtol``                  tolerance of every linear solve
@@ -60,6 +62,7 @@ from pfem2x import compat, fem
 from pfem2x.compat import PETSc
 from pfem2x.mesh import Domain
 from pfem2x.physics.flow.balanced import JumpForce
+from pfem2x.physics.flow.capillary import CapillaryForce
 from pfem2x.physics.flow.interface import InterfaceGeometry
 from pfem2x.physics.flow.problem import FlowSolver
 from pfem2x.physics.flow.projection import PressureProjection
@@ -116,12 +119,25 @@ class EulerianFlow(FlowSolver):
             fg = self.jump.force(rho, g)
         else:
             fg = rho * g if np.any(pr.gravity) else None  # no body force without gravity
+        # surface tension: the balanced capillary force (pfem2x.physics.flow.capillary)
+        # on the zero iso-line of phi, weighted by the smoothed Heaviside
+        #: the capillary force (None without effects.surface_tension)
+        self.capillary: CapillaryForce | None = None
+        if pr.two_phase and pr.surface_tension > 0.0:
+            self.capillary = CapillaryForce(
+                self.Q, self.interface, pr.surface_tension, self.eps + 2.0 * self.H, self.H
+            )
+            self.capillary.update(self.phi.x.array, self.cell_vol)
+            fc = self.capillary.force(H)
+            fg = fc if fg is None else fg + fc
         self._f_grav = fg
         self._use_projection(
             PressureProjection(
                 self.V, self.Q, self.gdim, rho, fg, dxq, self.dt_c, self._bcs_u, self._bcs_p,
                 pr.correction, pr.incremental, scene.method.preconditioner, pr.rtol,
-                self.timer, force_in_projection=self.jump is not None and not pr.incremental,
+                self.timer,
+                force_in_projection=(self.jump is not None or self.capillary is not None)
+                and not pr.incremental,
             )
         )  # fmt: skip
         if self.projection.force_in_projection:
@@ -133,7 +149,7 @@ class EulerianFlow(FlowSolver):
         self._update_inflow(0.0)
         compat.set_bc(compat.petsc_vec(self.u), self._bcs_u)
         self.u.x.scatter_forward()
-        if np.any(pr.gravity):
+        if np.any(pr.gravity) or self.capillary is not None:
             self.projection.initial_pressure(self.p)
         self.volume0 = self.phase_volumes()
 
@@ -173,6 +189,8 @@ class EulerianFlow(FlowSolver):
         L_m = (rho / dt * ufl.dot(un, w) + p_n * ufl.div(w)) * dxq
         if fg is not None:
             L_m = L_m + ufl.dot(fg, w) * dxq
+        if self.capillary is not None:  # the semi-implicit Laplace-Beltrami term
+            a_m = a_m + self.capillary.implicit_form(v, w, dt) * dxq
         if self.scene.method.supg:
             unorm = self._unorm()
             nu = mu / rho
@@ -195,6 +213,22 @@ class EulerianFlow(FlowSolver):
     def redistance(self) -> None:
         """Geometric re-distancing: signed distance to the current zero iso-line (clipped)."""
         self.interface.redistance(self.phi, self._keep)
+
+    def _correct_volume(self) -> None:
+        """Shift phi by a constant: phase 1 gets its initial volume back (collective).
+
+        The shift is the volume defect over the interface length (a uniform
+        normal displacement of a signed distance), applied twice.
+        """
+        itf, arr = self.interface, self.phi.x.array
+        v0 = self.volume0[self.problem.phases[0][0]]
+        for _ in range(2):
+            segs = itf.segments(arr)
+            length = np.sum(np.linalg.norm(segs[:, 1] - segs[:, 0], axis=1)) if len(segs) else 0.0
+            length = float(self.comm.allreduce(length, op=compat.MPI.SUM))
+            if length <= 0.0:
+                return
+            arr += (v0 - itf.positive_volume(arr, self.cell_vol)) / length
 
     def phase_volumes(self) -> dict[str, float]:
         names = [p[0] for p in self.problem.phases]
@@ -222,7 +256,7 @@ class EulerianFlow(FlowSolver):
             self.A_l = fem.assemble_matrix(self.a_l, [], self.A_l)
             if self.ls_solver is None:
                 self.ls_solver = fem.LinearSolver(self.A_l, "gmres", rtol=self.problem.rtol)
-                if self.jump is not None:  # start from phi^n: a fluid at rest keeps it exactly
+                if self.jump is not None or self.capillary is not None:  # start from phi^n: rest
                     self.ls_solver.ksp.setInitialGuessNonzero(True)
             else:
                 self.ls_solver.set_operator(self.A_l)
@@ -236,9 +270,13 @@ class EulerianFlow(FlowSolver):
         if pe and (self.steps_done + 1) % pe == 0:
             with self.timer("reinit"):
                 self.redistance()
+                if self.problem.volume_correction:
+                    self._correct_volume()
         self._update_phase()
         if self.jump is not None:
             self.jump.update(self.phi.x.array)
+        if self.capillary is not None:
+            self.capillary.update(self.phi.x.array, self.cell_vol)
 
     def _predict(self, t: float, dt: float) -> None:
         with self.timer("assembly"):

@@ -126,6 +126,7 @@ key                                 effect in this frame
 ``flow.mass_weighted``              mass-weighted velocity projection (two phases)
 ``flow.affine``                     step 2/4: APIC (particles carry the PIC share of grad u)
 ``flow.rtol``                       tolerance of every linear solve
+``flow.surface_tension``            capillary force on ``dist`` (:mod:`.capillary`)
 ==================================  =====================================================
 
 Ignored here: ``method.theta``, ``method.supg``, ``flow.interface_width``,
@@ -148,6 +149,7 @@ from pfem2x import particles as P
 from pfem2x.compat import MPI, PETSc
 from pfem2x.mesh import Domain
 from pfem2x.physics.flow.balanced import JumpForce
+from pfem2x.physics.flow.capillary import CapillaryForce
 from pfem2x.physics.flow.problem import FlowSolver
 from pfem2x.physics.flow.projection import PressureProjection
 from pfem2x.scene import Scene
@@ -216,6 +218,7 @@ class LagrangianFlow(FlowSolver):
                 pr.gravity[: self.gdim], 2.0 * self.H,
             )  # fmt: skip
             self.dist = compat.dolfinx.fem.Function(self.Q, name="dist")
+        self._init_capillary()
         self._seed_particles()
         self._update_phase_fields()
         self._forms()
@@ -224,7 +227,7 @@ class LagrangianFlow(FlowSolver):
         #: the pressure operator and the lumped mass are not those of the current
         #: density (see :meth:`_consistent_pressure`)
         self._operator_stale = True
-        if np.any(pr.gravity):
+        if np.any(pr.gravity) or self.capillary is not None:
             self.projection.initial_pressure(self.p)
             self._operator_stale = False
         self.projection.assemble_mass()
@@ -258,7 +261,7 @@ class LagrangianFlow(FlowSolver):
             x3 = np.zeros((len(x), 3))
             x3[:, : self.gdim] = x
             self.cloud_.field("phase")[:] = np.asarray(region(x3, 0.0), dtype=bool)
-            if self.jump is not None:
+            if self.dist is not None:
                 # the signed distance to the region's boundary (> 0 inside), P1 at the start
                 self.dist.x.array[:] = self.interface.signed_distance(region)
                 P.interpolate(self.cloud_, "dist", self.dist)
@@ -278,21 +281,27 @@ class LagrangianFlow(FlowSolver):
             if grav
             else None
         )
+        if self.capillary is not None:  # surface tension: the balanced capillary force
+            fc = self.capillary.force(self._phase_weight())
+            f_body = fc if f_body is None else f_body + fc
+            grav = True  # (the forms below take f_body as the body force)
         self._use_projection(
             PressureProjection(
                 self.V, self.Q, self.gdim, self.rho, f_body, dx,
                 self.dt_c, self._bcs_u, self._bcs_p, pr.correction, pr.incremental,
                 self.scene.method.preconditioner, pr.rtol, self.timer,
-                force_in_projection=self.jump is not None and not pr.incremental,
+                force_in_projection=(self.jump is not None or self.capillary is not None)
+                and not pr.incremental,
             )
         )  # fmt: skip
         v, w = ufl.TrialFunction(self.V), ufl.TestFunction(self.V)
         mus = {m for (_, _, m, _) in pr.phases}
         self.viscous = max(mus) > 0.0
         self.mu_varies = len(mus) > 1
-        self.a_K = compat.form(
-            2.0 * self.mu * ufl.inner(ufl.sym(ufl.grad(v)), ufl.sym(ufl.grad(w))) * dx
-        )
+        a_K = 2.0 * self.mu * ufl.inner(ufl.sym(ufl.grad(v)), ufl.sym(ufl.grad(w))) * dx
+        if self.capillary is not None:  # the semi-implicit Laplace-Beltrami term
+            a_K = a_K + self.capillary.implicit_form(v, w, self.dt_c) * dx
+        self.a_K = compat.form(a_K)
         self.K: Any = None
         self.A_m: Any = None
         self.m_solver: fem.LinearSolver | None = None
@@ -330,10 +339,13 @@ class LagrangianFlow(FlowSolver):
         else:
             P.project(c, "phase", self.phase, method="average", empty="neighbours")
             self.phi.x.array[:] = self.phase.x.array - 0.5
-            if self.jump is not None:
+            if self.dist is not None:
                 # linear-exact fit: a flat layer's distance gives a flat zero iso-line
                 P.project(c, "dist", self.dist, method="linear", empty="neighbours")
+            if self.jump is not None:
                 self.jump.update(self.dist.x.array)
+            if self.capillary is not None:
+                self.capillary.update(self.dist.x.array, self.cell_vol)
             cells = c.cells
             n = np.bincount(cells, minlength=self.n_owned)[: self.n_owned]
             heavy = np.bincount(cells, weights=c.field("phase"), minlength=self.n_owned)
@@ -498,7 +510,7 @@ class LagrangianFlow(FlowSolver):
         """``M_rho/dt + K_mu`` and its right-hand side ``M_rho u_hat/dt`` (needs ``b_mass``)."""
         b_mass = self.projection.b_mass
         n = len(b_mass.array_r)
-        if self.K is None or self.mu_varies:
+        if self.K is None or self.mu_varies or self.capillary is not None:
             self.K = fem.assemble_matrix(self.a_K, self._bcs_u, self.K)
         if self.A_m is None:
             self.A_m = self.K.duplicate(copy=True)
@@ -639,12 +651,36 @@ class LagrangianFlow(FlowSolver):
         with self.timer("assembly"):
             self._update_force()
 
+    # -- surface tension ----------------------------------------------------------
+    def _init_capillary(self) -> None:
+        """``effects.surface_tension``: the capillary force on the zero iso-line of ``dist``."""
+        pr = self.problem
+        if not (pr.two_phase and pr.surface_tension > 0.0):
+            return
+        if self.dist is None:
+            self.dist = compat.dolfinx.fem.Function(self.Q, name="dist")
+        # band: every cell a fraction between 0 and 1 may sit in has its nodes in it
+        self.capillary = CapillaryForce(
+            self.Q, self.interface, pr.surface_tension, 2.0 * self.H, self.H
+        )
+
+    def _phase_weight(self) -> Any:
+        """The frame's phase-1 weight: the DG0 density's cell fractions (UFL)."""
+        (_, r1, _, _), (_, r2, _, _) = self.problem.phases
+        return (self.rho - r2) / (r1 - r2)
+
+    def interface_function(self) -> np.ndarray:
+        """The projected signed distance ``dist`` (surface tension, gravity), else ``phi``."""
+        return self.dist.x.array if self.dist is not None else self.phi.x.array
+
     def restore_checkpoint(self, *args: Any, **kwargs: Any) -> None:
         """As :meth:`Solver.restore_checkpoint`; then the pressure operator, mass and jump force."""
         super().restore_checkpoint(*args, **kwargs)
         self._operator_stale = True
         if self.jump is not None:  # the balanced force of the restored level set
             self.jump.update(self.dist.x.array)
+        if self.capillary is not None:
+            self.capillary.update(self.dist.x.array, self.cell_vol)
 
     def step(self, t: float, dt: float) -> None:
         self.dt_c.value = dt
@@ -685,7 +721,7 @@ class LagrangianFlow(FlowSolver):
             fb = {"u": self.u}
             if self.problem.two_phase:
                 fb["phase"] = self.phase
-            if self.jump is not None:
+            if self.dist is not None:
                 fb["dist"] = self.dist
             self.last_population = P.rebalance(
                 c, nmin, nmax, seed=meth.seed + 7919 * (self.step_count + 1), fallback=fb

@@ -36,6 +36,7 @@ from pfem2x.compat import MPI, PETSc
 from pfem2x.expr import Expression
 from pfem2x.mesh import Domain
 from pfem2x.physics.base import Diverged, Solver
+from pfem2x.physics.flow.capillary import capillary_dt_limit
 from pfem2x.physics.flow.exact import ExactFlowError
 from pfem2x.physics.flow.interface import InterfaceGeometry
 from pfem2x.scene import FLOW_SIDES, Scene, SceneError
@@ -105,10 +106,15 @@ class FlowProblem:
         self.max_speed = scene.expr("flow", "max_speed").value()
         self.interface_width = float(fl.interface_width)
         self.reinit_every = int(fl.reinit_every)
+        self.volume_correction = bool(fl.volume_correction)
         self.rtol = float(fl.rtol)
         self.correction = str(fl.correction)
         self.incremental = fl.pressure_step == "increment"
         self.quadrature_degree = int(fl.quadrature_degree)
+        #: surface tension coefficient (0 without effects.surface_tension: nothing assembled)
+        self.surface_tension = (
+            scene.expr("flow", "surface_tension").value() if eff.surface_tension else 0.0
+        )
 
 
 class FlowSolver(Solver):
@@ -120,6 +126,9 @@ class FlowSolver(Solver):
     :meth:`cell_density` (what its density is made of) and :meth:`step`.
     """
 
+    #: the frame's capillary force (:mod:`pfem2x.physics.flow.capillary`; None without
+    #: effects.surface_tension)
+    capillary: Any = None
     checkpoint_state = ("u", "p", "phi", "phase", "u_star", "dp", "dt_last", "steps_done",
                         "volume0")  # fmt: skip
 
@@ -243,6 +252,14 @@ class FlowSolver(Solver):
             return None
         return self.interface.segments(self.phi.x.array)
 
+    def interface_function(self) -> np.ndarray:
+        """Nodal values (owned and ghost) of the P1 function whose zero iso-line is the interface.
+
+        The level set ``phi`` here; a frame with another interface function
+        (PFEM-2: the particles' projected signed distance) overrides it.
+        """
+        return self.phi.x.array
+
     def tips(self) -> tuple[float, float]:
         """Lowest and highest y of the zero iso-line of the level set (global)."""
         return self.interface.tips(self.phi.x.array)
@@ -282,6 +299,8 @@ class FlowSolver(Solver):
             d[f"volume_change_{name}"] = (v - v0) / v0 if v0 else 0.0
         if self.problem.two_phase:
             d["tip_falling"], d["tip_rising"] = self.tips()
+        if self.capillary is not None:  # the step against the explicit capillary limit
+            d["capillary_dt_ratio"] = self.dt_last / self.capillary_dt_limit()
         if self.exact is not None:
             d.update(self.exact.diagnostics(u, self.p.x.array, t))
         d.update(self.case.diagnostics(self, t))
@@ -311,10 +330,19 @@ class FlowSolver(Solver):
         if self.problem.two_phase:
             out["tip_falling"] = [[h["tau"], h["tip_falling"]] for h in history]
             out["tip_rising"] = [[h["tau"], h["tip_rising"]] for h in history]
+        if self.capillary is not None:
+            lim = self.capillary_dt_limit()
+            out["capillary_dt_limit"] = lim
+            out["capillary_dt_ratio_max"] = max(h.get("capillary_dt_ratio", 0.0) for h in history)
         out["tau_factor"] = self.problem.time_factor
         out.update(ExactFlowError.metrics(history))
         out.update(self.case.metrics(history))
         return out
+
+    def capillary_dt_limit(self) -> float:
+        """The explicit capillary step limit of the mesh (shortest edge) and the two phases."""
+        ph = self.problem.phases
+        return capillary_dt_limit(ph[0][1], ph[1][1], self.H, self.problem.surface_tension)
 
     # -- API ------------------------------------------------------------------
     def max_velocity(self, t: float) -> float:
