@@ -266,14 +266,24 @@ class Expression:
         for i, name in enumerate(("x", "y", "z")):
             env[name] = x[:, i] if x.shape[1] > i else np.zeros(n)
         with np.errstate(all="ignore"):
-            val = self._fn(env)
+            try:
+                val = self._fn(env)
+            except ArithmeticError as exc:  # constant parts are Python floats: 1/0
+                raise ExpressionError(
+                    f"{self.where}: {self.text!r} cannot be evaluated ({exc})"
+                ) from None
         return np.broadcast_to(np.asarray(val, dtype=float), (n,)).copy()
 
     def value(self) -> float:
         """The value of a constant expression (no x, y, z, t)."""
         if not self.constant:
             raise ExpressionError(f"{self.where}: expected a constant, got {self.text!r}")
-        return float(self._fn({}))
+        try:
+            return float(self._fn({}))
+        except ArithmeticError as exc:
+            raise ExpressionError(
+                f"{self.where}: {self.text!r} cannot be evaluated ({exc})"
+            ) from None
 
     def __repr__(self) -> str:
         return f"Expression({self.text!r})"

@@ -526,7 +526,9 @@ def _check_expressions(scene: Scene) -> None:
         if scene.physics == "flow":
             fl = scene.flow
             for k in ("velocity_scale", "time_factor", "max_speed"):
-                scene.expr("flow", k)
+                e = scene.expr("flow", k)
+                if e.constant and not math.isfinite(e.value()):
+                    raise SceneError(f"flow.{k}: must be finite, got {e.text!r}")
             sigma = scene.expr("flow", "surface_tension")
             if not sigma.constant:
                 raise SceneError(
