@@ -1,7 +1,5 @@
 """``python -m pfem2x`` = the ``pfem2x`` command."""
 
-import sys
+from pfem2x.cli import entry
 
-from pfem2x.cli import main
-
-sys.exit(main())
+entry()

@@ -144,23 +144,21 @@ def write_vtp(path: str | os.PathLike, points: np.ndarray, fields: dict[str, np.
     pts[:, : points.shape[1]] = points
     n = pts.shape[0]
 
-    def arr(a: np.ndarray, name: str | None, ncomp: int) -> str:
+    def arr(a: np.ndarray, name: str | None, ncomp: int) -> bytes:
         a = np.ascontiguousarray(a, dtype=np.float64 if a.dtype.kind == "f" else np.int64)
         raw = a.tobytes()
         head = np.array([len(raw)], dtype=np.uint64).tobytes()
         typ = "Float64" if a.dtype == np.float64 else "Int64"
         nm = f' Name="{name}"' if name else ""
-        return (
-            f'<DataArray type="{typ}"{nm} NumberOfComponents="{ncomp}" format="binary">'
-            f"{base64.b64encode(head + raw).decode()}</DataArray>\n"
-        )
+        tag = f'<DataArray type="{typ}"{nm} NumberOfComponents="{ncomp}" format="binary">'
+        return tag.encode() + base64.b64encode(head + raw) + b"</DataArray>\n"
 
     conn = np.arange(n, dtype=np.int64)
     parts = [
-        '<?xml version="1.0"?>\n',
-        '<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" header_type="UInt64">\n',
+        b'<?xml version="1.0"?>\n',
+        b'<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" header_type="UInt64">\n',
         f'<PolyData><Piece NumberOfPoints="{n}" NumberOfVerts="{n}" NumberOfLines="0" '
-        'NumberOfStrips="0" NumberOfPolys="0">\n<PointData>\n',
+        'NumberOfStrips="0" NumberOfPolys="0">\n<PointData>\n'.encode(),
     ]
     for name, a in fields.items():
         a = np.asarray(a)
@@ -169,13 +167,13 @@ def write_vtp(path: str | os.PathLike, points: np.ndarray, fields: dict[str, np.
             a = np.hstack([a, np.zeros((n, 1))])
             ncomp = 3
         parts.append(arr(a, name, ncomp))
-    parts.append("</PointData>\n<Points>\n")
+    parts.append(b"</PointData>\n<Points>\n")
     parts.append(arr(pts, None, 3))
-    parts.append("</Points>\n<Verts>\n")
-    parts.append(arr(conn, "connectivity", 1).replace('Name="connectivity"', 'Name="connectivity"'))
+    parts.append(b"</Points>\n<Verts>\n")
+    parts.append(arr(conn, "connectivity", 1))
     parts.append(arr(conn + 1, "offsets", 1))
-    parts.append("</Verts>\n</Piece></PolyData>\n</VTKFile>\n")
-    Path(path).write_text("".join(parts), encoding="ascii")
+    parts.append(b"</Verts>\n</Piece></PolyData>\n</VTKFile>\n")
+    Path(path).write_bytes(b"".join(parts))
 
 
 class ParticleWriter:
@@ -502,7 +500,7 @@ def _png_matplotlib(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
     import matplotlib.tri as mtri  # noqa: PLC0415
-    from matplotlib.collections import LineCollection  # noqa: PLC0415
+    from matplotlib.collections import LineCollection, TriMesh  # noqa: PLC0415
 
     nc, nv, gdim = coords.shape
     pts = coords.reshape(-1, gdim)
@@ -515,7 +513,13 @@ def _png_matplotlib(
     w, h = (6.5, 6.5 * aspect) if aspect <= 1 else (6.5 / aspect, 6.5)
     # room for the colour bar and labels; at least 5 inches wide for the title
     fig, ax = plt.subplots(figsize=(max(w + 1.8, 5.0), h + 0.9), layout="constrained")
-    tpc = ax.tripcolor(tri, v, shading="gouraud", vmin=lo, vmax=hi, cmap="viridis")
+    # ax.tripcolor(tri, v, shading="gouraud", ...) without the data limits of every
+    # triangle's path (most of the plot's time on a large mesh): the limits are set below
+    tpc = TriMesh(tri, array=v, cmap="viridis", edgecolors="none", antialiaseds=False)
+    tpc.set_linewidths((0.25,))
+    tpc.set_clim(lo, hi)
+    ax.grid(False)
+    ax.add_collection(tpc, autolim=False)
     if contour is not None:
         ax.tricontour(tri, v, levels=[contour], colors="w")
     if segments is not None and len(segments):

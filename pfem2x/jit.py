@@ -185,11 +185,12 @@ def warm_up(say: Callable[[str], Any] | None = None, comm: Any = None) -> float:
         (or once the warm-up has taken :data:`LATE_NOTICE` seconds); ``None``
         keeps quiet. Pass a function that prints on rank 0 only.
     comm:
-        An MPI communicator (collective then): rank 0 compiles first and the
-        other ranks load its cache files afterwards. Several processes that
-        compile the same kernels at once write the same cache files, and numba
-        does not lock them (a process may load another's code for its own
-        signature). ``None``: this process alone.
+        An MPI communicator (collective then): on a cold cache rank 0 compiles
+        first and the other ranks load its cache files afterwards. Several
+        processes that compile the same kernels at once write the same cache
+        files, and numba does not lock them (a process may load another's code
+        for its own signature). On a warm cache (rank 0's :func:`is_cold`)
+        every rank loads at once. ``None``: this process alone.
 
     Returns
     -------
@@ -223,17 +224,19 @@ def warm_up(say: Callable[[str], Any] | None = None, comm: Any = None) -> float:
     if comm is None or comm.size == 1:
         run()
         return time.perf_counter() - t0
+    cold = comm.bcast(is_cold() if comm.rank == 0 else None, root=0)
     failed: BaseException | None = None
-    if comm.rank == 0:
+    if comm.rank == 0 or not cold:  # warm: every rank loads the cache files at the same time
         try:
-            run()
+            run() if comm.rank == 0 else exercise_particles()
         except Exception as exc:  # re-raised on every rank below, after the collective
             failed = exc
     from pfem2x.compat import MPI  # noqa: PLC0415
 
     if comm.allreduce(failed is not None, op=MPI.LOR):
-        raise RuntimeError(f"compiling the particle kernels failed on rank 0: {failed}") from failed
-    if comm.rank != 0:
+        where = " on rank 0" if cold else ""
+        raise RuntimeError(f"compiling the particle kernels failed{where}: {failed}") from failed
+    if cold and comm.rank != 0:
         exercise_particles()
     return time.perf_counter() - t0
 

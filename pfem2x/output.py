@@ -367,7 +367,8 @@ def summary(
     ``run`` holds the loop's figures: ``status``, ``message``, ``history``,
     ``dts``, ``step_wall``, ``t``, ``dt``, ``courant_max``, ``adaptive``,
     ``wall``, ``cpu`` (this rank), ``setup_seconds``, ``startup_seconds``,
-    ``compile_seconds``.
+    ``compile_seconds``, ``startup_timings`` (the solver's ``timings`` at the
+    first step: the start-up's share of them, e.g. the initial pressure solve).
     """
     from pfem2x import compat, fem  # noqa: PLC0415
     from pfem2x.compat import MPI  # noqa: PLC0415
@@ -398,6 +399,9 @@ def summary(
         "cpu_seconds": float(comm.allreduce(run["cpu"], op=MPI.SUM)),
         "step_wall_median": float(np.median(step_wall)) if step_wall else 0.0,
         "timings": timings,
+        "timings_startup": {
+            k: comm.allreduce(v, op=MPI.MAX) for k, v in run.get("startup_timings", {}).items()
+        },
         "operators": dict(fem.COUNTERS),
         "dolfinx_version": compat.dolfinx.__version__,
         "mpi_size": comm.size,

@@ -269,6 +269,7 @@ class Simulation:
         lp, ck_every = self.loop, self.scene.output.checkpoint_every
         bar = self._progress(self.time.steps, lp.step)
         self.startup_seconds = pout.startup_seconds(run_started)
+        self.startup_timings = dict(self.solver.timings)  # the part of the timings before step 1
         try:
             while not self.time.done(lp.t):
                 self._step()
@@ -288,9 +289,10 @@ class Simulation:
         finally:
             if bar is not None:
                 bar.close()
-        if status == "ok":
-            self.outputs.finish(lp.step, lp.t, lp.dt)
-        self.outputs.close()
+        with self.solver.timer("output"):
+            if status == "ok":
+                self.outputs.finish(lp.step, lp.t, lp.dt)
+            self.outputs.close()
         return self._finish(status, code, message)
 
     def _start(self) -> None:
@@ -302,11 +304,13 @@ class Simulation:
                 pout.pio.atomic_write_text(out / "scene.toml", self._scene_text)
             self.outputs = pout.Outputs(sc, comm, out, self.domain, self.solver)
             self._cpu0, self._wall0 = time.process_time(), time.perf_counter()
-            d0 = self.solver.diagnostics(0.0)
+            with self.solver.timer("diagnostics"):
+                d0 = self.solver.diagnostics(0.0)
             d0.update({"step": 0, "t": 0.0})
             e0 = d0.get("kinetic_energy", 0.0)
             self.loop = _Loop(dt=self.time.dt, energy0=e0, energy_peak=e0, history=[d0])
-            self.outputs.initial(d0, self.loop.dt)
+            with self.solver.timer("output"):
+                self.outputs.initial(d0, self.loop.dt)
         else:
             ck, meta = self._resume
             history, err = load_checkpoint(comm, ck, self.solver)
@@ -339,8 +343,9 @@ class Simulation:
         self.solver.step(t, dt)
         t = tc.advance(step, t, dt)
         self.guards.after_solve(t)
-        self._vmax = self.solver.max_velocity(t)
-        d = self.solver.diagnostics(t)
+        with self.solver.timer("diagnostics"):
+            self._vmax = self.solver.max_velocity(t)
+            d = self.solver.diagnostics(t)
         d.update({"step": step, "t": t})
         self.guards.after_step(lp, t, dt, self._vmax, d)
         lp.step, lp.t = step, t
@@ -348,10 +353,11 @@ class Simulation:
         lp.step_wall.append(time.perf_counter() - ts)
         lp.dts.append(dt)
         lp.history.append(d)
-        self.outputs.after_step(step, t, dt, d, lp.step_wall[-1])
-        self.last_good.keep()
-        lp.t_good = t
-        self.outputs.snapshots(t, dt)
+        with self.solver.timer("output"):
+            self.outputs.after_step(step, t, dt, d, lp.step_wall[-1])
+            self.last_good.keep()
+            lp.t_good = t
+            self.outputs.snapshots(t, dt)
 
     def _checkpoint(self) -> str:
         """Write a checkpoint (collective); returns an error text or ``""``."""
@@ -415,6 +421,7 @@ class Simulation:
             "cpu": lp.cpu_before + time.process_time() - self._cpu0,
             "setup_seconds": self.setup_seconds,
             "startup_seconds": self.startup_seconds,
+            "startup_timings": self.startup_timings,
             "compile_seconds": self.comm.allreduce(self.compile_seconds, op=MPI.MAX),
         }
         summary = pout.summary(self.scene, self.comm, self.domain, self.solver, run)

@@ -65,6 +65,9 @@ def test_summary(small_run):
     assert res.stderr.strip() == ""  # --quiet: nothing printed
     # start-up (process start -> first step) holds the set-up and the imports before it
     assert s["startup_seconds"] > s["setup_seconds"] > 0
+    # the runner's timers, and their share before the first step (the outputs at t = 0)
+    assert {"diagnostics", "output"} <= set(s["timings"])
+    assert 0.0 < s["timings_startup"]["output"] <= s["timings"]["output"]
 
 
 def test_outputs(small_run):

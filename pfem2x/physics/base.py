@@ -111,7 +111,8 @@ class Solver:
         """Add the wall time of the ``with`` block to ``timings[key]``.
 
         The keys are those ``summary.json`` reports: ``particles``, ``assembly``,
-        ``solve`` (and ``reinit`` for the level set's re-distancing).
+        ``solve`` (and ``reinit`` for the level set's re-distancing; ``diagnostics``
+        and ``output`` for the runner's diagnostics and writers).
         """
         t0 = time.perf_counter()
         try:
