@@ -235,11 +235,20 @@ class Cloud:
         self._offsets = None
         return newpos
 
-    def extract(self, idx: np.ndarray) -> dict[str, np.ndarray]:
-        """Copies of positions, cells and all fields (hidden ones too) of ``idx``."""
-        out = {"__x": self._x[idx].copy(), "__c": self._c[idx].copy()}
+    def extract(self, idx: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """Copies of positions, cells and all fields (hidden ones too) of ``idx`` (all: None).
+
+        Each array is copied once (fancy indexing already copies; a slice is copied).
+        """
+        sel = slice(0, self._n) if idx is None else idx
+
+        def take(a: np.ndarray) -> np.ndarray:
+            r = a[sel]
+            return r.copy() if np.may_share_memory(r, a) else r
+
+        out = {"__x": take(self._x), "__c": take(self._c)}
         for name, a in self._f.items():
-            out[name] = a[idx].copy()
+            out[name] = take(a)
         return out
 
     # ------------------------------------------------------------------ order

@@ -367,7 +367,7 @@ def _like(val: Any, old: Any) -> Any:
 
 def _cloud_arrays(cloud: Any) -> dict[str, np.ndarray]:
     """Positions, cells and every field (hidden ones too) of a particle cloud."""
-    raw = cloud.extract(np.arange(cloud.n))
+    raw = cloud.extract()
     out = {"cloud.x": raw.pop("__x"), "cloud.cells": raw.pop("__c")}
     shapes = {k: list(cloud.field_shape(k)) for k in raw}
     out.update({f"cloud.f.{k}": v for k, v in raw.items()})

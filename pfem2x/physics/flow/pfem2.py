@@ -690,7 +690,7 @@ class LagrangianFlow(FlowSolver):
         c = self.cloud_
         if self.extra_pass:
             with self.timer("particles"):
-                saved = c.extract(np.arange(c.n))
+                saved = c.extract()
                 self._u_old.x.array[:] = self.u.x.array
                 p_old = self.p.x.array.copy()
                 force_old = self.force.x.array.copy()
