@@ -3,10 +3,10 @@
 Usage::
 
     python benchmarks/interfoam_bubble.py make CASE --n 40 [--max-co 0.5] [--max-dt DT]
-        [--write-every 0.02] [--t-end 3]
+        [--capillary C] [--write-every 0.02] [--t-end 3]
     python benchmarks/interfoam_bubble.py run CASE [--tlim 1800]
     python benchmarks/interfoam_bubble.py post CASE
-    python benchmarks/interfoam_bubble.py bench --n 40 80 [--work DIR] [--out DIR]
+    python benchmarks/interfoam_bubble.py bench --n 40 80 [--capillary C] [--work DIR] [--out DIR]
 
 The problem is the scene ``pfem2x/scenes/rising-bubble.toml`` (Hysing et al. 2009, test
 case 1): its ``[params]`` (R, xc, yc, g, sigma), ``[phases]`` (densities, dynamic
@@ -23,7 +23,9 @@ v1912 (``apt-get install openfoam``), as in ``benchmarks/interfoam_case.py``: Eu
 time, MULES (semi-implicit, ``MULESCorr yes``, 2 alpha correctors, ``cAlpha 1``, vanLeer),
 PIMPLE with 1 outer and 3 pressure correctors, no momentum predictor; adaptive step
 ``maxCo = maxAlphaCo = --max-co`` (default 0.5), at most ``--max-dt`` (default the write
-interval). interFoam itself has no capillary time-step limit.
+interval) and, with ``--capillary C``, at most C times the explicit capillary limit
+sqrt(rho_mean h³ / (2 pi sigma)) (:func:`capillary_dt`): interFoam itself has no capillary
+time-step limit.
 
 Output: ``alpha.bubble`` and ``U`` every ``--write-every`` time units (a ``writeObjects``
 function object; all fields at the end) and, every time step, the bubble volume
@@ -45,7 +47,7 @@ and the largest Courant number.
 ``bench`` runs make, run and post for every ``--n`` in turn (serial interFoam, one
 thread), records the load average before and after every run and writes
 ``result_n<N>.json``, ``series_n<N>.csv`` and ``results.md`` into ``--out`` (default
-``docs/data/rising-bubble/interfoam``).
+``docs/data/rising-bubble/interfoam``; with ``--capillary C`` the names end in ``_cap<C>``).
 """
 
 from __future__ import annotations
