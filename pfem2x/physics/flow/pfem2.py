@@ -10,11 +10,10 @@ motion alone (no convective term is ever assembled). One step
    eq. 2.10 with :math:`\theta = 0`, RK2 sub-steps of at most
    ``method.substep_courant`` cells) and add the explicit part of the
    momentum source, :math:`a^n = g - \rho^{-1}\nabla p^n`, integrated along
-   the path (eq. 2.9): the trapezoid rule on each of ``m`` equal sub-steps
-   :math:`h = \Delta t/m` of the move, ``m`` from the same sub-step limits
-   (``method.substep_courant``, ``method.substep_gradient``) on the mesh
-   velocity (:meth:`LagrangianFlow._path_substeps`), so a particle's
-   centripetal acceleration follows its curved path.
+   the path (eq. 2.9) inside the move: the trapezoid rule on each of its
+   sub-steps (the same limits ``method.substep_courant``,
+   ``method.substep_gradient``), so a particle's centripetal acceleration
+   follows its curved path.
    :math:`a^n` is the P1 field :math:`M_\rho^{-1}\int(\rho g - \nabla p^n)\cdot w`
    (the :math:`\rho`-weighted lumped mass of the correction step), so a fluid
    in hydrostatic balance gets no kick and the particles get no cell-wise jumps.
@@ -194,7 +193,8 @@ class LagrangianFlow(FlowSolver):
         #: the source integrated on the sub-steps of the path (False: its two end points;
         #: kept for measurements)
         self.path_source = True
-        self.path_substeps = 1  # sub-steps of the last move's source integral
+        #: mean sub-steps per particle of the last move's source integral
+        self.path_substeps = 1
         self.dt_c = compat.dolfinx.fem.Constant(mesh, PETSc.ScalarType(1.0))
 
         # cell-wise density / viscosity from the particles
@@ -389,60 +389,49 @@ class LagrangianFlow(FlowSolver):
     def _move(self, dt: float, theta: float) -> None:
         r"""Step 1: X-IVAS move along ``u^n`` (+ ``theta``: ``u^{n+1}``), the source on the path.
 
-        Eq. 2.9: the source :math:`a` is integrated along each particle's path, by
-        the trapezoid rule on every one of ``m`` equal sub-steps of the move
-        (:meth:`_path_substeps`): kick :math:`h/2`, move :math:`h`, kick :math:`h/2`
-        with :math:`h = \Delta t/m` (the inner kicks merged). With ``m = 1`` this is
-        the trapezoid of the path's two end points.
+        Eq. 2.9: the source :math:`a` (a P1 vector field, see :meth:`_kick`) is
+        integrated along each particle's path inside the move itself
+        (:func:`pfem2x.particles.advect` with a vector source): the trapezoid rule
+        on every sub-step of the move, each crossing at most ``method.substep_courant``
+        cells (one sample per cell crossed: :math:`a` is constant enough per cell)
+        and turning at most ``method.substep_gradient``; then
+        :math:`u_p \mathrel{+}= \int a\,dt`. With ``flow.light_source = "gravity"``
+        the light phase's particles get :math:`g\,\Delta t` instead. With
+        ``flow.pressure_step = "total"`` (the source is :math:`g` or nothing) and
+        without :attr:`path_source`: the trapezoid of the path's two end points.
         """
         c = self.cloud_
         meth = self.scene.method
         vel = self._u_old if theta > 0.0 else self.u
-        m = self._path_substeps(vel, dt)
-        self.path_substeps = m
-        h = dt / m
-        self._kick(0.5 * h)
-        for k in range(m):
-            if theta > 0.0:
-                P.advect(
-                    c, self._u_old, h, velocity_next=self.u, theta=theta,
-                    courant=meth.substep_courant, gradient_courant=meth.substep_gradient,
-                )  # fmt: skip
-            else:
-                P.advect(
-                    c, vel, h, courant=meth.substep_courant,
-                    gradient_courant=meth.substep_gradient,
-                )  # fmt: skip
-            # storage may have been reordered / migrated in between
-            self._kick(h if k < m - 1 else 0.5 * h)
-
-    def _path_substeps(self, vel: Any, dt: float) -> int:
-        r"""Sub-steps ``m`` of the path integral of the source (same on every rank, collective).
-
-        The sub-step limits of the move, taken on the mesh velocity: a sub-step
-        crosses at most ``method.substep_courant`` cells,
-        :math:`h \max_K |u|_K / h_K \le` ``substep_courant``, and turns by at most
-        ``method.substep_gradient``, :math:`h \max_K |\nabla u|_K \le`
-        ``substep_gradient`` (0 disables). ``m = 1`` with ``flow.pressure_step =
-        "total"`` (the source is :math:`g` or nothing) and without :attr:`path_source`.
-        """
+        kw: dict[str, Any] = {
+            "courant": meth.substep_courant,
+            "gradient_courant": meth.substep_gradient,
+        }
+        if theta > 0.0:
+            kw.update(velocity_next=self.u, theta=theta)
         if self.gravity_only or not self.path_source:
-            return 1  # no source, or a constant g: its integral needs no sub-steps
-        meth = self.scene.method
-        t = self.domain.table
-        nc = self.n_owned
-        vals = np.asarray(vel.x.array).reshape(-1, self.gdim)
-        dofs = self.dofmap[:nc]
-        cell_vals = vals[dofs]  # (cells, nodes, gdim)
-        speed = np.linalg.norm(cell_vals, axis=2).max(axis=1)
-        rate = float(np.max(speed / t.h[:nc], initial=0.0)) / meth.substep_courant
-        if meth.substep_gradient > 0.0:
-            dv = cell_vals[:, 1:, :] - cell_vals[:, :1, :]  # (cells, tdim, gdim)
-            grad = np.einsum("cia,cib->cab", dv, t.inv_map[:nc])
-            gn = np.sqrt(np.einsum("cab,cab->c", grad, grad))
-            rate = max(rate, float(np.max(gn, initial=0.0)) / meth.substep_gradient)
-        rate = float(self.comm.allreduce(rate, op=MPI.MAX))
-        return max(1, int(np.ceil(rate * dt - 1e-9)))
+            self.path_substeps = 1
+            self._kick(0.5 * dt)
+            P.advect(c, vel, dt, **kw)
+            self._kick(0.5 * dt)  # storage may have been reordered / migrated in between
+            return
+        if theta > 0.0:
+            # the limit of X-IVAS sub-steps h -> 0: the streamline of the blended velocity
+            # (the Newton stage of one X-IVAS step over dt would leave the source's path)
+            kw = {k: kw[k] for k in ("courant", "gradient_courant")}
+            vel = (1.0 - theta) * self._u_old.x.array + theta * self.u.x.array
+            vel = vel.reshape(-1, self.gdim)
+        if not self.light_gravity_only:
+            stats = P.advect(c, vel, dt, source=self.force, source_field="u", **kw)
+        else:
+            stats = P.advect(c, vel, dt, source=self.force_heavy, source_field="_kick", **kw)
+            f = c.field("_kick")
+            f[c.field("phase") < 0.5] = dt * np.asarray(self.problem.gravity)
+            c.field("u")[:] += f
+            c.remove_field("_kick")
+        n = float(self.comm.allreduce(float(c.n), op=MPI.SUM))
+        steps = float(self.comm.allreduce(float(stats.substeps), op=MPI.SUM))
+        self.path_substeps = max(1, round(steps / max(n, 1.0)))
 
     def _kick(self, h: float) -> None:
         r"""``u_p += h a(x_p)``, the explicit source of step 1.
