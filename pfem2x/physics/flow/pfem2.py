@@ -143,7 +143,9 @@ key                                 effect in this frame
 
 Ignored here: ``method.theta``, ``method.supg``, ``flow.interface_width``,
 ``flow.reinit_every``, ``flow.quadrature_degree`` (the forms are integrated
-exactly: DG0 coefficients, P1 fields), ``flow.inflow_velocity``.
+exactly: DG0 coefficients, P1 fields), ``flow.inflow_velocity``,
+``flow.volume_correction`` (with gravity the level set ``dist`` always keeps the
+phase volume, step 2).
 
 Limitations: box sides ``slip`` / ``noslip`` only (inflow / outflow need
 particle seeding and deletion at the boundary, not wired yet); 2D.
