@@ -180,6 +180,39 @@ def test_source_integrated_along_path(comm, nodal):
 
 
 @pytest.mark.mpi
+@pytest.mark.parametrize("callable_velocity", [False, True])
+def test_vector_source_per_component(comm, callable_velocity):
+    """A vector P1 source (k = 2) along u = (1, 0): each component exact, as its scalar source."""
+    d = build_mesh(comm, "rectangle", [[0.0, 0.0], [4.0, 1.0]], [16, 4])
+    clouds = []
+    for _ in range(2):
+        cl = Cloud(d, {"F": (2,), "T": (), "x0": (2,)})
+        seed_cells(cl, 4, seed=7, region=lambda x: x[:, 0] < 1.0)
+        cl["x0"] = cl.x
+        clouds.append(cl)
+    V = compat.function_space(d.mesh, 1, (2,))
+    u = dolfinx.fem.Function(V)
+    u.interpolate(lambda x: np.stack([np.ones(x.shape[1]), np.zeros(x.shape[1])]))
+    vel = (lambda x, t: np.tile([1.0, 0.0], (len(x), 1))) if callable_velocity else u
+    F = dolfinx.fem.Function(V)
+    F.interpolate(lambda x: np.stack([x[0], 2.0 - 0.5 * x[0] + x[1]]))
+    Q = dolfinx.fem.Function(compat.function_space(d.mesh, 1))
+    Q.interpolate(lambda x: 2.0 - 0.5 * x[0] + x[1])
+    dt = 2.0
+    advect(clouds[0], vel, dt, source=F, source_field="F", source_scale=3.0)
+    advect(clouds[1], vel, dt, source=Q, source_field="T", source_scale=3.0)
+    x0 = clouds[0]["x0"]
+    expect = np.stack(
+        [x0[:, 0] * dt + dt**2 / 2, (2.0 - 0.5 * x0[:, 0] + x0[:, 1]) * dt - dt**2 / 4]
+    )
+    assert np.allclose(clouds[0]["F"], 3.0 * expect.T, atol=1e-10)
+    assert np.array_equal(clouds[0].x, clouds[1].x)
+    assert np.array_equal(clouds[0]["F"][:, 1], clouds[1]["T"])  # bit-identical per component
+    with pytest.raises(ValueError, match="source_field 'T'"):
+        advect(clouds[0], vel, dt, source=F, source_field="T")
+
+
+@pytest.mark.mpi
 def test_theta_stage_without_contraction_terminates(comm):
     """Eq. (2.10) with theta*dt*|grad V| = 3: plain fixed-point iteration diverges.
 

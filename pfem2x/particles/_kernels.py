@@ -63,13 +63,13 @@ MoveState.__doc__ = """Per-particle state of a move (updated in place by :func:`
 ``x (n, gdim)`` positions, ``cell (n,)`` cells, ``t_left (n,)`` time left on
 the path (stage 0) or Newton iterations spent (stage 1), ``aux (n, gdim)``
 accumulated displacement (stage 0) or the anchor ``y`` of eq. (2.10)
-(stage 1), ``acc (n,)`` source integral, ``stage (n,)``, ``status (n,)`` int8.
+(stage 1), ``acc (n, k)`` source integral (per component), ``stage (n,)``, ``status (n,)`` int8.
 """
 
 MoveParams = namedtuple("MoveParams", ["dt", "theta", "courant", "gcourant", "nsub", "has_q"])
 MoveParams.__doc__ = """Parameters of one move: step ``dt``, X-IVAS ``theta``, sub-step
 limits ``courant`` and ``gcourant`` (or ``nsub > 0`` fixed sub-steps), and
-``has_q`` (a nodal source is integrated along the path)."""
+``has_q`` (a nodal source ``q (ndofs, k)`` is integrated along the path)."""
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -509,9 +509,10 @@ def advect_p1(P, un, un1, q, S, M):
     each of local Courant number ``courant`` and at most ``gcourant``
     times the inverse velocity-gradient norm of the cell (or ``dt/nsub``
     when ``nsub > 0``); then, when ``theta > 0``, the fixed point of eq. (2.10)
-    with ``un1``. Along the path ``acc += int q dt`` (trapezoid per sub-step)
-    when ``has_q``. ``aux`` holds the accumulated displacement (stage 0) or
-    the anchor ``y`` (stage 1). Returns the number of sub-steps taken.
+    with ``un1``. Along the path ``acc += int q dt`` (trapezoid per sub-step,
+    each of the ``k`` components of ``q (ndofs, k)``) when ``has_q``. ``aux``
+    holds the accumulated displacement (stage 0) or the anchor ``y`` (stage 1).
+    Returns the number of sub-steps taken.
 
     ``P`` is a :class:`MoveState` (updated in place), ``S`` a
     :class:`MoveParams`, ``M`` the :class:`MeshArrays`. One loop
@@ -540,17 +541,6 @@ def _eval_s(vals, j, d0, d1, d2, d3, l0, l1, l2, l3, dim):
         v += l2 * vals[d2, j]
     if dim > 2:
         v += l3 * vals[d3, j]
-    return v
-
-
-@njit(cache=True, error_model="numpy")
-def _eval_q(q, d0, d1, d2, d3, l0, l1, l2, l3, dim):
-    """A scalar P1 field ``q (ndofs,)`` at barycentrics ``l`` on dofs ``d``."""
-    v = l0 * q[d0] + l1 * q[d1]
-    if dim > 1:
-        v += l2 * q[d2]
-    if dim > 2:
-        v += l3 * q[d3]
     return v
 
 
@@ -614,6 +604,9 @@ def _advect_p1_dim(
     sh = np.zeros(3)
     y = np.empty(3)
     wth = np.empty((6, 3))
+    kq = q.shape[1]
+    ak = np.zeros(kq)  # the source integral of the particle (k components)
+    qv = np.zeros(kq)  # the source at the start of a sub-step
     nsteps = 0
     for p in range(n):
         if stage[p] == STAGE_DONE:
@@ -624,7 +617,9 @@ def _advect_p1_dim(
         p2 = x[p, 2] if dim > 2 else 0.0
         st = ST_OK
         tl = t_left[p]
-        a = acc[p]
+        if has_q:
+            for j in range(kq):
+                ak[j] = acc[p, j]
         if stage[p] == STAGE_PATH:
             a0 = aux[p, 0]
             a1 = aux[p, 1] if dim > 1 else 0.0
@@ -686,13 +681,16 @@ def _advect_p1_dim(
                         st = ST_GHOST
                         break
                     # outflow / fail / remote from an owned cell: explicit Euler step
-                    q0 = _eval_q(q, d0, d1, d2, d3, l0, l1, l2, l3, dim) if has_q else 0.0
+                    if has_q:
+                        for j in range(kq):
+                            qv[j] = _eval_s(q, j, d0, d1, d2, d3, l0, l1, l2, l3, dim)
                     n0, n1, n2, cn, s, l0, l1, l2, l3, s0, s1, s2 = _walk_s(
                         p0 + h * v0, p1 + h * v1, p2 + h * v2, c, origin, inv, nbr, pshift,
                         period, 1000, dim,
                     )  # fmt: skip
                     if has_q:
-                        a += h * q0
+                        for j in range(kq):
+                            ak[j] += h * qv[j]
                     a0 += n0 - s0 - p0
                     a1 += n1 - s1 - p1
                     a2 += n2 - s2 - p2
@@ -713,7 +711,9 @@ def _advect_p1_dim(
                 w0 = _eval_s(un, 0, e0, e1, e2, e3, m0, m1, m2, m3, dim)
                 w1 = _eval_s(un, 1, e0, e1, e2, e3, m0, m1, m2, m3, dim) if dim > 1 else 0.0
                 w2 = _eval_s(un, 2, e0, e1, e2, e3, m0, m1, m2, m3, dim) if dim > 2 else 0.0
-                q0 = _eval_q(q, d0, d1, d2, d3, l0, l1, l2, l3, dim) if has_q else 0.0
+                if has_q:
+                    for j in range(kq):
+                        qv[j] = _eval_s(q, j, d0, d1, d2, d3, l0, l1, l2, l3, dim)
                 n0, n1, n2, cn, s, l0, l1, l2, l3, s0, s1, s2 = _walk_s(
                     p0 + 0.5 * h * (v0 + w0), p1 + 0.5 * h * (v1 + w1), p2 + 0.5 * h * (v2 + w2),
                     c, origin, inv, nbr, pshift, period, 1000, dim,
@@ -723,9 +723,12 @@ def _advect_p1_dim(
                     f1 = dofs[cn, 1]
                     f2 = dofs[cn, 2] if dim > 1 else 0
                     f3 = dofs[cn, 3] if dim > 2 else 0
-                    a += 0.5 * h * (q0 + _eval_q(q, f0, f1, f2, f3, l0, l1, l2, l3, dim))
+                    for j in range(kq):
+                        qe = _eval_s(q, j, f0, f1, f2, f3, l0, l1, l2, l3, dim)
+                        ak[j] += 0.5 * h * (qv[j] + qe)
                 elif has_q:
-                    a += h * q0
+                    for j in range(kq):
+                        ak[j] += h * qv[j]
                 a0 += n0 - s0 - p0
                 a1 += n1 - s1 - p1
                 a2 += n2 - s2 - p2
@@ -782,7 +785,9 @@ def _advect_p1_dim(
             x[p, 2] = p2
         cell[p] = c
         t_left[p] = tl
-        acc[p] = a
+        if has_q:
+            for j in range(kq):
+                acc[p, j] = ak[j]
         status[p] = st
     return nsteps
 

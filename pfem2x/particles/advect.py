@@ -24,7 +24,7 @@ from pfem2x.particles.pmesh import ParticleMesh
 __all__ = ["advect", "nodal_values"]
 
 VelocityLike = Any  # dolfinx Function | ndarray (ndofs, gdim) | callable v(x, t) -> (n, gdim)
-SourceLike = Any  # dolfinx Function | ndarray (ndofs,) | callable q(x, t) -> (n,)
+SourceLike = Any  # dolfinx Function | ndarray (ndofs,) or (ndofs, k) | callable q(x, t) -> (n,)
 
 _WORK = ("_tl", "_acc", "_aux", "_stage")
 
@@ -96,7 +96,9 @@ def advect(
         Explicit source of eq. (2.9): ``source_field += source_scale *
         int_{t}^{t+dt} q(x_p(s), s) ds`` along the path (trapezoid per
         Heun sub-step). ``q`` is a P1 Function / nodal array ``(ndofs,)``
-        (frozen at ``t``) or a callable ``q(x, t) -> (n,)``.
+        (frozen at ``t``) or a callable ``q(x, t) -> (n,)``; a vector P1
+        Function / nodal array ``(ndofs, k)`` is integrated per component
+        into a field ``source_field`` of shape ``(k,)``.
     sort:
         Sort the particles by cell first (faster kernel; cheap).
 
@@ -110,7 +112,14 @@ def advect(
     inp = _inputs(
         cloud.pmesh, velocity, velocity_next, theta, courant, substeps, source, source_field
     )
-    _add_work_fields(cloud, dt)
+    kq = inp.q.shape[1]
+    if source is not None and source_field in cloud:
+        if cloud.field_shape(source_field) != (() if kq == 1 else (kq,)):
+            raise ValueError(
+                f"source_field {source_field!r} has shape {cloud.field_shape(source_field)}, "
+                f"the source {kq} component(s)"
+            )
+    _add_work_fields(cloud, dt, kq)
     params = K.MoveParams(
         float(dt), float(theta), float(courant), float(gradient_courant), inp.nsub, inp.has_q
     )
@@ -123,7 +132,7 @@ def advect(
                 break
         if source is not None:
             if source_field not in cloud:
-                cloud.add_field(source_field)
+                cloud.add_field(source_field, cloud.field_shape("_acc"))
             cloud.field(source_field)[:] += source_scale * cloud.field("_acc")
     finally:
         for name in _WORK:
@@ -136,7 +145,8 @@ class _Inputs(NamedTuple):
     """The velocity and source of one :func:`advect` call, checked, with their P1 nodal values.
 
     ``un`` / ``q`` are placeholders (zeros) when the velocity / source is a
-    callable (``vel_call`` / ``src_call``); ``un1`` is one only without ``theta``.
+    callable (``vel_call`` / ``src_call``); ``q`` is ``(ndofs, k)`` (``k = 1``: a
+    scalar source); ``un1`` is one only without ``theta``.
     """
 
     velocity: Any
@@ -174,16 +184,16 @@ def _inputs(
     un = np.zeros((pm.n_dofs, gd)) if vel_call else nodal_values(pm, velocity, gd)
     un1 = nodal_values(pm, velocity_next, gd) if theta > 0.0 else np.zeros((1, gd))
     has_q = source is not None and not src_call
-    q = nodal_values(pm, source, 1)[:, 0].copy() if has_q else np.zeros(1)
+    q = nodal_values(pm, source) if has_q else np.zeros((1, 1))
     if source is not None and source_field is None:
         raise ValueError("source needs source_field")
     return _Inputs(velocity, un, un1, vel_call, source, q, src_call, has_q, nsub)
 
 
-def _add_work_fields(cloud: Cloud, dt: float) -> None:
-    """The per-particle move state: time left, source integral, path / X-IVAS aux, stage."""
+def _add_work_fields(cloud: Cloud, dt: float, k: int = 1) -> None:
+    """The per-particle move state: time left, source integral (``k`` components), aux, stage."""
     cloud.add_field("_tl", (), dt)
-    cloud.add_field("_acc")
+    cloud.add_field("_acc", () if k == 1 else (k,))
     cloud.add_field("_aux", (cloud.pmesh.gdim,))
     cloud.add_field("_stage")
     cloud.field("_tl")[:] = dt
@@ -214,7 +224,7 @@ def _p1_pass(
         cloud.cells,
         cloud.field("_tl"),
         cloud.field2d("_aux"),
-        cloud.field("_acc"),
+        cloud.field2d("_acc"),
         stage,
         st2,
     )
@@ -265,10 +275,10 @@ def _eval_velocity(
 def _eval_source(
     pm: ParticleMesh, inp: _Inputs, x: np.ndarray, cells: np.ndarray, t: Any
 ) -> np.ndarray:
-    """The source ``(n,)`` at points ``x`` in ``cells`` at time(s) ``t``."""
+    """The source ``(n, k)`` at points ``x`` in ``cells`` at time(s) ``t``."""
     if inp.src_call:
-        return np.asarray(inp.source(x, t), dtype=np.float64).reshape(len(x))
-    return K.evaluate_p1(x, cells, inp.q.reshape(-1, 1), pm.arrays)[:, 0]
+        return np.asarray(inp.source(x, t), dtype=np.float64).reshape(len(x), 1)
+    return K.evaluate_p1(x, cells, inp.q, pm.arrays)
 
 
 def _general_path(
@@ -310,7 +320,7 @@ def _general_path(
         ends = _source_ends(pm, inp, x, xn, c, tn, h)  # before the walk moves xn (walls)
         cn, st, shifts = K.locate_many(xn, c, pm.arrays, MAXIT)
         if ends is not None:
-            cloud.field("_acc")[idx] += _source_step(pm, inp, ends, xn, c, cn, st, tn, h)
+            cloud.field2d("_acc")[idx] += _source_step(pm, inp, ends, xn, c, cn, st, tn, h)
         cloud.field2d("_aux")[idx] += xn - shifts - x
         cloud.x[idx] = xn
         cloud.cells[idx] = cn
@@ -422,8 +432,9 @@ def _source_step(
     q0, q1 = ends
     if q1 is None:
         okw = (st == K.ST_OK) | (st == K.ST_GHOST)
-        q1 = np.where(okw, _eval_source(pm, inp, xn, np.where(okw, cn, c), tn + h), q0)
-    return 0.5 * h * (q0 + q1)
+        q1 = _eval_source(pm, inp, xn, np.where(okw, cn, c), tn + h)
+        q1 = np.where(okw[:, None], q1, q0)
+    return 0.5 * h[:, None] * (q0 + q1)
 
 
 def _end_path(cloud: Cloud, status: np.ndarray, dt: float, theta: float) -> None:
