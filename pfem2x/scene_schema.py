@@ -368,6 +368,13 @@ SCHEMA: dict[str, dict[str, Key]] = {
             doc="PFEM-2: particles carry the mesh velocity gradient C_p of the end of each "
             "step and the projection averages u_p + C_p (x_i - x_p) (APIC transfer)",
         ),
+        "density": Key(
+            choice("level_set", "particles"),
+            "level_set",
+            doc="PFEM-2, two phases with gravity: cell densities from the cut cells of the "
+            "particles' signed distance, shifted to keep the heavy volume (level_set), or "
+            "from the fraction of each cell's particles in phase 1 (particles)",
+        ),
         "explicit_pressure": Key(
             choice("consistent", "lagged"),
             "consistent",
@@ -511,6 +518,7 @@ FRAME_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
             "flow.light_source",
             "flow.mass_weighted",
             "flow.affine",
+            "flow.density",
             "flow.extra_pass",
             "flow.explicit_pressure",
         ),

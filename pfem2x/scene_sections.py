@@ -209,6 +209,7 @@ class FlowSection(Section):
     light_source: str
     mass_weighted: bool
     affine: bool
+    density: str
     explicit_pressure: str
     pressure_step: str
     correction: str

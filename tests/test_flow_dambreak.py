@@ -85,23 +85,18 @@ def test_dam_break_courant5_whole_collapse(shared_tmp):
 
 
 def test_velocity_correction_keeps_the_water(shared_tmp):
-    """``flow.correction``: both corrections keep the water's particles and its volume.
+    """``flow.correction``: the rho-weighted (momentum) correction loses the water.
 
-    Small variant (60 x 30, Courant 5, T = 3.33). The particles' phase volume
-    (``volume_change_max_particles_water``) stays within 2 % with the pressure
-    equation's own 1/rho in the correction (0.97 % measured) and now also with the
-    rho-weighted lumped mass (0.84 %): that one lost 7.5 % (25 % with gravity as
-    rho g) while the density was the particles' phase fraction per cell, the water
-    particles crowding into the interface cells; with the density from the level
-    set ``dist`` they no longer do. The density's own volume (the cut cells of the
-    shifted ``dist``) is kept to round-off.
+    Small variant (60 x 30, Courant 5, T = 3.33). With the pressure equation's
+    own 1/rho in the correction the water volume stays within 2 % (0.74 %
+    measured); with the rho-weighted lumped mass (pfem2x <= 0.2) the water
+    particles crowd into the interface cells and 7.5 % of the volume is lost
+    (25 % with gravity as rho g, before the balanced force).
     """
     vel = run(shared_tmp / "v").summary["metrics"]
     mom = run(shared_tmp / "m", "flow.correction=momentum").summary["metrics"]
-    key = "volume_change_max_particles_water"
-    assert vel[key] < 0.02
-    assert mom[key] < 0.02
-    assert max(vel["volume_change_max_water"], mom["volume_change_max_water"]) < 1e-9
+    assert vel["volume_change_max_water"] < 0.02
+    assert mom["volume_change_max_water"] > max(0.05, 5.0 * vel["volume_change_max_water"])
 
 
 def test_level_set_at_courant5_holds_but_drifts(shared_tmp):

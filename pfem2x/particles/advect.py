@@ -113,12 +113,7 @@ def advect(
         cloud.pmesh, velocity, velocity_next, theta, courant, substeps, source, source_field
     )
     kq = inp.q.shape[1]
-    if source is not None and source_field in cloud:
-        if cloud.field_shape(source_field) != (() if kq == 1 else (kq,)):
-            raise ValueError(
-                f"source_field {source_field!r} has shape {cloud.field_shape(source_field)}, "
-                f"the source {kq} component(s)"
-            )
+    _check_source_field(cloud, source, source_field, kq)
     _add_work_fields(cloud, dt, kq)
     params = K.MoveParams(
         float(dt), float(theta), float(courant), float(gradient_courant), inp.nsub, inp.has_q
@@ -131,14 +126,31 @@ def advect(
             if not more:
                 break
         if source is not None:
-            if source_field not in cloud:
-                cloud.add_field(source_field, cloud.field_shape("_acc"))
-            cloud.field(source_field)[:] += source_scale * cloud.field("_acc")
+            _accumulate(cloud, source_field, source_scale)
     finally:
         for name in _WORK:
             cloud.remove_field(name)
     cloud.invalidate_order()
     return stats
+
+
+def _accumulate(cloud: Cloud, source_field: str, scale: float) -> None:
+    """``source_field += scale * _acc`` (the path integral), the field made if new."""
+    if source_field not in cloud:
+        cloud.add_field(source_field, cloud.field_shape("_acc"))
+    cloud.field(source_field)[:] += scale * cloud.field("_acc")
+
+
+def _check_source_field(
+    cloud: Cloud, source: SourceLike | None, source_field: str | None, kq: int
+) -> None:
+    """An existing ``source_field`` must have the source's number of components."""
+    if source is not None and source_field in cloud:
+        if cloud.field_shape(source_field) != (() if kq == 1 else (kq,)):
+            raise ValueError(
+                f"source_field {source_field!r} has shape {cloud.field_shape(source_field)}, "
+                f"the source {kq} component(s)"
+            )
 
 
 class _Inputs(NamedTuple):

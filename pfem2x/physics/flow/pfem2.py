@@ -136,6 +136,7 @@ key                                 effect in this frame
 ``flow.pic_fraction_light``         the same for the light phase (two phases)
 ``flow.light_source``               ``full`` or ``gravity`` (see :meth:`LagrangianFlow._kick`)
 ``flow.mass_weighted``              mass-weighted velocity projection (two phases)
+``flow.density``                    ``level_set`` (cut cells of ``dist``) or ``particles``
 ``flow.affine``                     step 2/4: APIC (particles carry the PIC share of grad u)
 ``flow.rtol``                       tolerance of every linear solve
 ``flow.surface_tension``            capillary force on ``dist`` (:mod:`.capillary`)
@@ -167,12 +168,13 @@ from pfem2x.physics.flow.capillary import CapillaryForce
 from pfem2x.physics.flow.interface import positive_fraction
 from pfem2x.physics.flow.problem import FlowSolver
 from pfem2x.physics.flow.projection import PressureProjection
+from pfem2x.physics.flow.transfers import ParticleTransfers
 from pfem2x.scene import Scene
 
 __all__ = ["LagrangianFlow"]
 
 
-class LagrangianFlow(FlowSolver):
+class LagrangianFlow(ParticleTransfers, FlowSolver):
     """PFEM-2 fractional-step NS with particle velocity and sharp particle phase.
 
     See the module docstring for the step. Diagnostics are those of
@@ -208,14 +210,15 @@ class LagrangianFlow(FlowSolver):
         self.extra_pass = bool(fl.extra_pass)
         #: the explicit source's pressure solved from u^n each step (flow.explicit_pressure)
         self.consistent_pressure = not self.gravity_only and fl.explicit_pressure == "consistent"
-        #: the source integrated on the sub-steps of the path (False: its two end points;
-        #: kept for measurements)
+        #: the source integrated along the path (False: its end points; for measurements)
         self.path_source = True
         #: mean sub-steps per particle of the last move's source integral
         self.path_substeps = 1
         #: two phases with gravity: the level set ``dist`` is shifted to keep the heavy
         #: phase's volume (:meth:`_conserve_volume`; False: not, kept for measurements)
         self.conserve_volume = True
+        #: flow.density = "level_set": the density from the cut cells of the shifted dist
+        self.level_set_density = fl.density == "level_set"
         self.level_shift = 0.0  # the last shift of ``dist``
         self.dt_c = compat.dolfinx.fem.Constant(mesh, PETSc.ScalarType(1.0))
 
@@ -364,13 +367,15 @@ class LagrangianFlow(FlowSolver):
             if self.dist is not None:
                 # linear-exact fit: a flat layer's distance gives a flat zero iso-line
                 P.project(c, "dist", self.dist, method="linear", empty="neighbours")
-            if self.jump is not None:
+            if self.jump is not None and self.level_set_density:
                 if self.conserve_volume:
                     self._conserve_volume()
                 self.jump.update(self.dist.x.array)
                 # the density's interface is the balanced force's: the cut-cell fraction
                 self.frac[:] = positive_fraction(self.dist.x.array[self.dofmap[: self.n_owned]])
             else:
+                if self.jump is not None:
+                    self.jump.update(self.dist.x.array)
                 self.frac[:] = self._particle_fraction()
             if self.capillary is not None:
                 self.capillary.update(self.dist.x.array, self.cell_vol)
@@ -380,70 +385,6 @@ class LagrangianFlow(FlowSolver):
         self.mu.x.array[self._cell_dofs] = m2 + (m1 - m2) * f
         self.rho.x.scatter_forward()
         self.mu.x.scatter_forward()
-
-    def _particle_fraction(self) -> np.ndarray:
-        """Fraction of each owned cell's particles with ``phase = 1`` (empty: the P1 phase)."""
-        c = self.cloud_
-        cells = c.cells
-        n = np.bincount(cells, minlength=self.n_owned)[: self.n_owned]
-        heavy = np.bincount(cells, weights=c.field("phase"), minlength=self.n_owned)
-        nodal = self.phase.x.array[self.dofmap[: self.n_owned]].mean(axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(n > 0, heavy[: self.n_owned] / np.maximum(n, 1), nodal)
-
-    def _conserve_volume(self) -> None:
-        r"""Shift the level set ``dist`` so the heavy phase keeps its initial volume (collective).
-
-        The area where the P1 ``dist`` is positive changes as the particles carry
-        it: the P1 velocity is divergence-free only in the weak sense, and the
-        linear fit moves its zero iso-line within cells (Rayleigh–Taylor 16 × 64 at
-        Courant 8: 1.1 % in 5 steps; 100 × 400: 0.36 %). One constant :math:`s` is
-        added to ``dist`` (the P1 field and every particle's), the root of
-        :math:`V(s) = V_0` (``volume0``), :math:`V(s)` the area where
-        :math:`d + s > 0` (cut-cell fractions), by the Illinois rule to
-        :math:`10^{-12}` of the domain: the interface moves along its normal by
-        about :math:`s/|\nabla d|` everywhere. :attr:`level_shift` is the last
-        :math:`s`. Nothing is shifted before ``volume0`` is known (the start) or
-        when no shift brings the volume back (no interface).
-        """
-        self.level_shift = 0.0
-        if not self.volume0:
-            return
-        target = self.volume0[self.problem.phases[0][0]]
-        arr = self.dist.x.array
-        vals = arr[self.dofmap[: self.n_owned]]
-        cv = self.cell_vol
-
-        def excess(s: float) -> float:
-            v = float(np.dot(positive_fraction(vals + s), cv))
-            return float(self.comm.allreduce(v, op=MPI.SUM)) - target
-
-        tol = 1e-12 * float(self.comm.allreduce(float(cv.sum()), op=MPI.SUM))
-        a, fa = 0.0, excess(0.0)
-        if abs(fa) <= tol:
-            return
-        b = -self.H if fa > 0.0 else self.H  # V grows with s
-        fb = excess(b)
-        while fa * fb > 0.0 and abs(b) < 1e3 * self.H:  # widen the bracket
-            a, fa = b, fb
-            b *= 2.0
-            fb = excess(b)
-        if fa * fb > 0.0:
-            return
-        for _ in range(100):  # Illinois (regula falsi, the stale end's value halved)
-            x = b - fb * (b - a) / (fb - fa)
-            fx = excess(x)
-            if abs(fx) <= tol:
-                b = x
-                break
-            if fx * fb < 0.0:
-                a, fa = b, fb
-            else:
-                fa *= 0.5
-            b, fb = x, fx
-        self.level_shift = b
-        arr += b
-        self.cloud_.field("dist")[:] += b
 
     def cell_density(self) -> np.ndarray:
         """Density of each owned cell: the DG0 density of the cell's phase-1 fraction."""
@@ -629,88 +570,6 @@ class LagrangianFlow(FlowSolver):
             if self.affine:
                 self._set_affine(alpha)
 
-    def _set_affine(self, alpha: np.ndarray | None = None) -> None:
-        """``C_p = grad u(x_p)`` of the mesh velocity (constant per P1 cell), ``flow.affine``."""
-        c = self.cloud_
-        g = self.gdim
-        if alpha is None:  # no particle takes the mesh velocity: no affine part
-            c.field2d("grad_u")[:] = 0.0
-            return
-        vals = np.asarray(self.u.x.array).reshape(-1, g)
-        cells = c.cells
-        cv = vals[self.dofmap[cells]]  # (n, nodes, gdim)
-        inv = self.domain.table.inv_map[cells]  # (n, tdim, gdim)
-        c.field2d("grad_u")[:] = np.einsum(
-            "nia,nib->nab", cv[:, 1:, :] - cv[:, :1, :], inv
-        ).reshape(-1, g * g)
-        c.field2d("grad_u")[:] *= alpha[:, None]
-
-    def _project_velocity(self) -> None:
-        """Step 2 for ``u``: plain projection, or mass-weighted (``flow.mass_weighted``).
-
-        Mass-weighted: ``u_i = sum w_p rho_p u_p / sum w_p rho_p`` (``"average"``
-        weights ``w_p = N_i(x_p)``; a linear fit of the step in ``rho`` could
-        leave ``[rho_light, rho_heavy]``). At a node of the interface the heavy
-        phase's velocity then dominates as its mass does in the lumped
-        ``rho``-mass, instead of an equal share of the light phase's
-        velocities, whose divergence the pressure step would otherwise correct
-        by moving the light phase.
-        """
-        c = self.cloud_
-        meth = self.scene.method.projection
-        meth = "average" if meth == "auto" else meth
-        if self.affine:
-            self._project_affine()
-            return
-        if not self.mass_weighted:
-            P.project(c, "u", self.u_hat, method=meth, empty="neighbours")
-            return
-        g = self.gdim
-        (_, r1, _, _), (_, r2, _, _) = self.problem.phases
-        m = c.field2d("_mom")
-        rho_p = r2 + (r1 - r2) * c.field("phase")
-        m[:, :g] = rho_p[:, None] * c.field("u")
-        m[:, g] = rho_p
-        P.project(c, "_mom", self._mom_nodes, method="average", empty="neighbours")
-        mn = self._mom_nodes
-        ok = mn[:, g] > 0.0
-        uh = self.u_hat.x.array.reshape(-1, g)
-        uh[ok] = mn[ok, :g] / mn[ok, g:]
-
-    def _project_affine(self) -> None:
-        r"""Step 2, ``flow.affine``: :math:`u_i = \sum_p w_p (u_p + C_p(x_i - x_p)) / \sum_p w_p`.
-
-        ``w_p = N_i(x_p)`` (times :math:`\rho_p` with ``flow.mass_weighted``). The sum
-        splits into the particles' :math:`u_p - C_p x_p` and :math:`C_p`, both projected
-        with the ``"average"`` weights: :math:`u_i = \overline{u - Cx}_i + \overline{C}_i x_i`.
-        Exact for a linear velocity (``u_p``, ``C_p`` sampled from it), with the
-        average's positive weights.
-        """
-        c = self.cloud_
-        g = self.gdim
-        C = c.field2d("grad_u").reshape(-1, g, g)
-        w = c.field2d("_aff")
-        if self.mass_weighted:
-            (_, r1, _, _), (_, r2, _, _) = self.problem.phases
-            rho_p = r2 + (r1 - r2) * c.field("phase")
-        else:
-            rho_p = np.ones(c.n)
-        w[:, :g] = rho_p[:, None] * (c.field("u") - np.einsum("nab,nb->na", C, c.x[:, :g]))
-        w[:, g : g + g * g] = rho_p[:, None] * C.reshape(-1, g * g)
-        if self.mass_weighted:
-            w[:, -1] = rho_p
-        nodes = np.zeros((len(self.coords), w.shape[1]))
-        if self.mass_weighted:
-            nodes[:, -1] = 1.0
-        P.project(c, "_aff", nodes, method="average", empty="neighbours")
-        if self.mass_weighted:
-            nodes /= np.where(nodes[:, -1:] > 0.0, nodes[:, -1:], 1.0)
-        xi = self.coords[:, :g]
-        uh = self.u_hat.x.array.reshape(-1, g)
-        uh[:] = nodes[:, :g] + np.einsum(
-            "nab,nb->na", nodes[:, g : g + g * g].reshape(-1, g, g), xi
-        )
-
     def _consistent_pressure(self) -> None:
         r"""``p`` from the velocity ``u^n`` and the body force, and the source ``a`` from it.
 
@@ -792,24 +651,6 @@ class LagrangianFlow(FlowSolver):
         self.require_finite("particle velocity", c.field("u"))
         self._check()
 
-    def _rebalance(self) -> None:
-        """Step 5: population control; the phase stays sharp."""
-        c = self.cloud_
-        meth = self.scene.method
-        nmin, nmax = meth.min_particles_per_cell, meth.max_particles_per_cell
-        if nmin > 0 or nmax > 0:
-            fb = {"u": self.u}
-            if self.problem.two_phase:
-                fb["phase"] = self.phase
-            if self.dist is not None:
-                fb["dist"] = self.dist
-            self.last_population = P.rebalance(
-                c, nmin, nmax, seed=meth.seed + 7919 * (self.step_count + 1), fallback=fb
-            )
-            if self.problem.two_phase:
-                ph = c.field("phase")
-                ph[:] = ph > 0.5
-
     # -- output / diagnostics -----------------------------------------------------
     def cloud(self) -> Any:
         return self.cloud_
@@ -831,7 +672,7 @@ class LagrangianFlow(FlowSolver):
             hi = y[~ph].max() if (~ph).any() else -np.inf
             d["tip_falling_particles"] = float(self.comm.allreduce(lo, op=MPI.MIN))
             d["tip_rising_particles"] = float(self.comm.allreduce(hi, op=MPI.MAX))
-        if self.jump is not None:
+        if self.jump is not None and self.level_set_density:
             d["level_shift"] = self.level_shift
             # the particles' own phase volume (not the density's): the transport's drift
             v = float(np.dot(self._particle_fraction(), self.cell_vol))

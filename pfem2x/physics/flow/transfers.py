@@ -1,0 +1,193 @@
+r"""Particle–mesh transfers of the PFEM-2 flow frame (:mod:`~pfem2x.physics.flow.pfem2`).
+
+Step 2's velocity projection (plain, mass-weighted, affine), the cell phase
+fraction of the particles and the volume-keeping shift of the level set
+``dist``, and step 5's population control, as a mixin of
+:class:`~pfem2x.physics.flow.pfem2.LagrangianFlow` (its attributes: ``cloud_``,
+``u``, ``u_hat``, ``phase``, ``dist``, ``dofmap``, ``cell_vol``, ...).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from pfem2x import particles as P
+from pfem2x.compat import MPI
+from pfem2x.physics.flow.interface import positive_fraction
+
+__all__ = ["ParticleTransfers"]
+
+
+class ParticleTransfers:
+    """Transfers between the particles and the P1 mesh of the PFEM-2 flow frame."""
+
+    cloud_: Any
+    affine: bool
+    mass_weighted: bool
+    level_shift: float
+
+    def _particle_fraction(self) -> np.ndarray:
+        """Fraction of each owned cell's particles with ``phase = 1`` (empty: the P1 phase)."""
+        c = self.cloud_
+        cells = c.cells
+        n = np.bincount(cells, minlength=self.n_owned)[: self.n_owned]
+        heavy = np.bincount(cells, weights=c.field("phase"), minlength=self.n_owned)
+        nodal = self.phase.x.array[self.dofmap[: self.n_owned]].mean(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(n > 0, heavy[: self.n_owned] / np.maximum(n, 1), nodal)
+
+    def _conserve_volume(self) -> None:
+        r"""Shift the level set ``dist`` so the heavy phase keeps its initial volume (collective).
+
+        The area where the P1 ``dist`` is positive changes as the particles carry
+        it: the P1 velocity is divergence-free only in the weak sense, and the
+        linear fit moves its zero iso-line within cells (Rayleigh–Taylor 16 × 64 at
+        Courant 8: 1.1 % in 5 steps; 100 × 400: 0.36 %). One constant :math:`s` is
+        added to ``dist`` (the P1 field and every particle's), the root of
+        :math:`V(s) = V_0` (``volume0``), :math:`V(s)` the area where
+        :math:`d + s > 0` (cut-cell fractions), by the Illinois rule to
+        :math:`10^{-12}` of the domain: the interface moves along its normal by
+        about :math:`s/|\nabla d|` everywhere. :attr:`level_shift` is the last
+        :math:`s`. Nothing is shifted before ``volume0`` is known (the start) or
+        when no shift brings the volume back (no interface).
+        """
+        self.level_shift = 0.0
+        if not self.volume0:
+            return
+        target = self.volume0[self.problem.phases[0][0]]
+        arr = self.dist.x.array
+        vals = arr[self.dofmap[: self.n_owned]]
+        cv = self.cell_vol
+
+        def excess(s: float) -> float:
+            v = float(np.dot(positive_fraction(vals + s), cv))
+            return float(self.comm.allreduce(v, op=MPI.SUM)) - target
+
+        tol = 1e-12 * float(self.comm.allreduce(float(cv.sum()), op=MPI.SUM))
+        a, fa = 0.0, excess(0.0)
+        if abs(fa) <= tol:
+            return
+        b = -self.H if fa > 0.0 else self.H  # V grows with s
+        fb = excess(b)
+        while fa * fb > 0.0 and abs(b) < 1e3 * self.H:  # widen the bracket
+            a, fa = b, fb
+            b *= 2.0
+            fb = excess(b)
+        if fa * fb > 0.0:
+            return
+        for _ in range(100):  # Illinois (regula falsi, the stale end's value halved)
+            x = b - fb * (b - a) / (fb - fa)
+            fx = excess(x)
+            if abs(fx) <= tol:
+                b = x
+                break
+            if fx * fb < 0.0:
+                a, fa = b, fb
+            else:
+                fa *= 0.5
+            b, fb = x, fx
+        self.level_shift = b
+        arr += b
+        self.cloud_.field("dist")[:] += b
+
+    def _set_affine(self, alpha: np.ndarray | None = None) -> None:
+        """``C_p = grad u(x_p)`` of the mesh velocity (constant per P1 cell), ``flow.affine``."""
+        c = self.cloud_
+        g = self.gdim
+        if alpha is None:  # no particle takes the mesh velocity: no affine part
+            c.field2d("grad_u")[:] = 0.0
+            return
+        vals = np.asarray(self.u.x.array).reshape(-1, g)
+        cells = c.cells
+        cv = vals[self.dofmap[cells]]  # (n, nodes, gdim)
+        inv = self.domain.table.inv_map[cells]  # (n, tdim, gdim)
+        c.field2d("grad_u")[:] = np.einsum(
+            "nia,nib->nab", cv[:, 1:, :] - cv[:, :1, :], inv
+        ).reshape(-1, g * g)
+        c.field2d("grad_u")[:] *= alpha[:, None]
+
+    def _project_velocity(self) -> None:
+        """Step 2 for ``u``: plain projection, or mass-weighted (``flow.mass_weighted``).
+
+        Mass-weighted: ``u_i = sum w_p rho_p u_p / sum w_p rho_p`` (``"average"``
+        weights ``w_p = N_i(x_p)``; a linear fit of the step in ``rho`` could
+        leave ``[rho_light, rho_heavy]``). At a node of the interface the heavy
+        phase's velocity then dominates as its mass does in the lumped
+        ``rho``-mass, instead of an equal share of the light phase's
+        velocities, whose divergence the pressure step would otherwise correct
+        by moving the light phase.
+        """
+        c = self.cloud_
+        meth = self.scene.method.projection
+        meth = "average" if meth == "auto" else meth
+        if self.affine:
+            self._project_affine()
+            return
+        if not self.mass_weighted:
+            P.project(c, "u", self.u_hat, method=meth, empty="neighbours")
+            return
+        g = self.gdim
+        (_, r1, _, _), (_, r2, _, _) = self.problem.phases
+        m = c.field2d("_mom")
+        rho_p = r2 + (r1 - r2) * c.field("phase")
+        m[:, :g] = rho_p[:, None] * c.field("u")
+        m[:, g] = rho_p
+        P.project(c, "_mom", self._mom_nodes, method="average", empty="neighbours")
+        mn = self._mom_nodes
+        ok = mn[:, g] > 0.0
+        uh = self.u_hat.x.array.reshape(-1, g)
+        uh[ok] = mn[ok, :g] / mn[ok, g:]
+
+    def _project_affine(self) -> None:
+        r"""Step 2, ``flow.affine``: :math:`u_i = \sum_p w_p (u_p + C_p(x_i - x_p)) / \sum_p w_p`.
+
+        ``w_p = N_i(x_p)`` (times :math:`\rho_p` with ``flow.mass_weighted``). The sum
+        splits into the particles' :math:`u_p - C_p x_p` and :math:`C_p`, both projected
+        with the ``"average"`` weights: :math:`u_i = \overline{u - Cx}_i + \overline{C}_i x_i`.
+        Exact for a linear velocity (``u_p``, ``C_p`` sampled from it), with the
+        average's positive weights.
+        """
+        c = self.cloud_
+        g = self.gdim
+        C = c.field2d("grad_u").reshape(-1, g, g)
+        w = c.field2d("_aff")
+        if self.mass_weighted:
+            (_, r1, _, _), (_, r2, _, _) = self.problem.phases
+            rho_p = r2 + (r1 - r2) * c.field("phase")
+        else:
+            rho_p = np.ones(c.n)
+        w[:, :g] = rho_p[:, None] * (c.field("u") - np.einsum("nab,nb->na", C, c.x[:, :g]))
+        w[:, g : g + g * g] = rho_p[:, None] * C.reshape(-1, g * g)
+        if self.mass_weighted:
+            w[:, -1] = rho_p
+        nodes = np.zeros((len(self.coords), w.shape[1]))
+        if self.mass_weighted:
+            nodes[:, -1] = 1.0
+        P.project(c, "_aff", nodes, method="average", empty="neighbours")
+        if self.mass_weighted:
+            nodes /= np.where(nodes[:, -1:] > 0.0, nodes[:, -1:], 1.0)
+        xi = self.coords[:, :g]
+        uh = self.u_hat.x.array.reshape(-1, g)
+        uh[:] = nodes[:, :g] + np.einsum(
+            "nab,nb->na", nodes[:, g : g + g * g].reshape(-1, g, g), xi
+        )
+
+    def _rebalance(self) -> None:
+        """Step 5: population control; the phase stays sharp."""
+        c = self.cloud_
+        meth = self.scene.method
+        nmin, nmax = meth.min_particles_per_cell, meth.max_particles_per_cell
+        if nmin > 0 or nmax > 0:
+            fb = {"u": self.u}
+            if self.problem.two_phase:
+                fb["phase"] = self.phase
+            if self.dist is not None:
+                fb["dist"] = self.dist
+            self.last_population = P.rebalance(
+                c, nmin, nmax, seed=meth.seed + 7919 * (self.step_count + 1), fallback=fb
+            )
+            if self.problem.two_phase:
+                ph = c.field("phase")
+                ph[:] = ph > 0.5
