@@ -149,7 +149,7 @@ from pfem2x import particles as P
 from pfem2x.compat import MPI, PETSc
 from pfem2x.mesh import Domain
 from pfem2x.physics.flow.balanced import JumpForce
-from pfem2x.physics.flow.capillary import CapillaryForce
+from pfem2x.physics.flow.capillary import CapillaryForce, capillary_increment
 from pfem2x.physics.flow.problem import FlowSolver
 from pfem2x.physics.flow.projection import PressureProjection
 from pfem2x.scene import Scene
@@ -305,8 +305,6 @@ class LagrangianFlow(FlowSolver):
         self.K: Any = None
         self.A_m: Any = None
         self.m_solver: fem.LinearSolver | None = None
-        self._cap_rhs: Any = None  # work vectors of _capillary_increment
-        self._cap_sol: Any = None
         if not self.gravity_only:  # total pressure: the particles get g only, no source form
             a_rho = f_body - ufl.grad(self.p) if grav else -ufl.grad(self.p)
             self.L_f = compat.form(ufl.dot(a_rho, w) * dx)
@@ -509,37 +507,19 @@ class LagrangianFlow(FlowSolver):
             self._update_force()
 
     def _capillary_increment(self, dt: float) -> None:
-        r"""Surface tension: the implicit operator on the force's velocity increment too.
-
-        The predictor's Laplace–Beltrami term damps :math:`u^*`, but the
-        capillary force enters in the pressure step, after it: the increment
-        :math:`\Delta = u^{n+1} - u^*` it makes is explicit, which bounds the step
-        (a capillary wave of frequency :math:`\omega` is stable for
-        :math:`\omega\Delta t \lesssim 1.6` only). Here :math:`\Delta` passes
-        the predictor's operator, :math:`\delta = (M_\rho/\Delta t + K_\mu +
-        \Delta t\,\sigma L_\Gamma)^{-1} M_\rho\Delta/\Delta t`, and the pressure
-        step is repeated from :math:`u^* + \delta - \Delta` (the force once more):
-        :math:`u^{n+1} = u^* + \delta` projected, as if the force had been in the
-        predictor (unconditionally stable for the capillary waves). At rest with
-        a balanced force :math:`\Delta = 0`: nothing changes.
-        """
+        """``flow.capillary_increment`` (:func:`.capillary.capillary_increment`; lumped mass)."""
         proj = self.projection
-        n = len(proj.b_mass.array_r)
-        ustar = self.u_star.x.array
-        delta = self.u.x.array[:n] - ustar[:n]
-        if self._cap_rhs is None:
-            self._cap_rhs = self.b_m.duplicate()
-            self._cap_sol = self.b_m.duplicate()
-        self._cap_rhs.array[:] = proj.b_mass.array_r / dt * delta
-        with self.timer("solve"):
-            self.m_solver.solve(self._cap_rhs, self._cap_sol)
-        with self.timer("assembly"):
-            ustar[:n] += self._cap_sol.array_r - delta
-            self.u_star.x.scatter_forward()
-        proj.solve_increment()
-        with self.timer("assembly"):
+
+        def mass(x: Any, y: Any) -> None:
+            y.pointwiseMult(x, proj.b_mass)
+            y.scale(1.0 / dt)
+
+        def project() -> None:
+            proj.solve_increment()
             proj.correct(self.u, self.p, dt, mass_ready=True)
             self._update_force()
+
+        capillary_increment(self.u, self.u_star, self.m_solver, mass, project)
 
     def _viscous_operator(self, dt: float) -> None:
         """``M_rho/dt + K_mu`` and its right-hand side ``M_rho u_hat/dt`` (needs ``b_mass``)."""
@@ -568,7 +548,7 @@ class LagrangianFlow(FlowSolver):
             self._project_velocity()
             self._update_phase_fields()
         self._mesh_step(dt)
-        if self.capillary is not None and self.viscous:
+        if self.capillary is not None and self.viscous and self.scene.flow.capillary_increment:
             self._capillary_increment(dt)
         with self.timer("particles"):
             self.du.x.array[:] = self.u.x.array - self.u_hat.x.array
