@@ -79,7 +79,7 @@ def test_refined_circle_curvature(n):
 
     Measured (fit and average over 3 cells, as :class:`CapillaryForce`): max error
     1.6e-4 (n = 40), 1.6e-4 (n = 80), mean 7.7e-5, 5.6e-5; with the linear end
-    points 1.3e-2, 1.1e-2 (mean 3e-3).
+    points 1.3e-2, 1.1e-2 (mean 5.1e-3, 3.1e-3).
     """
     xy, cells = grid(n)
     R = 0.25
