@@ -406,6 +406,14 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "effects.surface_tension): balanced capillary force with the semi-implicit "
             "Laplace-Beltrami term in the momentum operator",
         ),
+        "capillary_increment": Key(
+            boolean,
+            False,
+            doc="surface tension: the capillary force's velocity increment also passes the "
+            "momentum operator (its Laplace-Beltrami term) and the pressure step is repeated: "
+            "stable at steps far above the explicit capillary limit (the flow's O(dt) error "
+            "grows)",
+        ),
         "rtol": Key(number(0.0, 1.0, lo_open=True), 1e-8, doc="linear solver tolerance"),
         "quadrature_degree": Key(integer(1, 20), 4, doc="quadrature degree of the flow forms"),
     },
@@ -472,6 +480,7 @@ FLOW_COMMON_KEYS = (
     *(f"flow.{s}" for s in FLOW_SIDES),
     *(f"flow.{k}" for k in ("max_speed", "pressure_step", "correction", "rtol")),
     "flow.surface_tension",
+    "flow.capillary_increment",
 )
 _PARTICLES = (
     "method.particles_per_cell",

@@ -214,6 +214,7 @@ class FlowSection(Section):
     pressure_step: str
     correction: str
     surface_tension: ExprText
+    capillary_increment: bool
     rtol: float
     quadrature_degree: int
 

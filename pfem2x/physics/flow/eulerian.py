@@ -62,7 +62,7 @@ from pfem2x import compat, fem
 from pfem2x.compat import PETSc
 from pfem2x.mesh import Domain
 from pfem2x.physics.flow.balanced import JumpForce
-from pfem2x.physics.flow.capillary import CapillaryForce
+from pfem2x.physics.flow.capillary import CapillaryForce, capillary_increment
 from pfem2x.physics.flow.interface import InterfaceGeometry
 from pfem2x.physics.flow.problem import FlowSolver
 from pfem2x.physics.flow.projection import PressureProjection
@@ -202,6 +202,11 @@ class EulerianFlow(FlowSolver):
             r_m = rho * un / dt - ufl.grad(p_n)
             L_m = L_m + ufl.dot(ws, r_m if fg is None else r_m + fg) * dxq
         self.a_m, self.L_m = compat.form(a_m), compat.form(L_m)
+        #: flow.capillary_increment: the mass matrix of the force's increment
+        self.a_mass: Any = None
+        if self.capillary is not None and self.scene.flow.capillary_increment:
+            self.a_mass = compat.form(rho / dt * ufl.dot(v, w) * dxq)
+        self.M_cap: Any = None
         self.A_m: Any = None
         self.b_m = compat.create_vector(self.L_m)
         self.m_solver: fem.LinearSolver | None = None
@@ -293,6 +298,22 @@ class EulerianFlow(FlowSolver):
             )
             self.u_star.x.scatter_forward()
 
+    def _capillary_increment(self, dt: float) -> None:
+        """``flow.capillary_increment`` (:func:`.capillary.capillary_increment`).
+
+        Without, the capillary waves bound the step: the level set at Courant 1,
+        h = 1/40 (13 x the explicit limit) had a minimum circularity of 0.77.
+        """
+        proj = self.projection
+        with self.timer("assembly"):
+            self.M_cap = fem.assemble_matrix(self.a_mass, self._bcs_u, self.M_cap)
+
+        def project() -> None:
+            proj.solve_increment()
+            proj.correct(self.u, self.p, dt)
+
+        capillary_increment(self.u, self.u_star, self.m_solver, self.M_cap.mult, project)
+
     def step(self, t: float, dt: float) -> None:
         self.dt_c.value = dt
         self.dt_last = dt
@@ -305,5 +326,7 @@ class EulerianFlow(FlowSolver):
         self.projection.solve_increment()
         with self.timer("assembly"):
             self.projection.correct(self.u, self.p, dt)
+        if self.a_mass is not None:
+            self._capillary_increment(dt)
         self.steps_done += 1
         self._check()

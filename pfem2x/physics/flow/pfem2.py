@@ -13,10 +13,8 @@ motion alone (no convective term is ever assembled). One step
    the path (eq. 2.9) inside the move: the trapezoid rule on each of its
    sub-steps (the same limits ``method.substep_courant``,
    ``method.substep_gradient``), so a particle's centripetal acceleration
-   follows its curved path. One call of the numba move kernel per pass
-   (:func:`pfem2x.particles.advect` with a vector source): Rayleigh–Taylor
-   100 × 400 at Courant 8 in 24 CPU s, against 287 with the sub-steps of the
-   path driven from Python (kick, move, kick).
+   follows its curved path; one call of the numba move kernel per pass
+   (:func:`pfem2x.particles.advect` with a vector source).
    :math:`a^n` is the P1 field :math:`M_\rho^{-1}\int(\rho g - \nabla p^n)\cdot w`
    (the :math:`\rho`-weighted lumped mass of the correction step), so a fluid
    in hydrostatic balance gets no kick and the particles get no cell-wise jumps.
@@ -34,7 +32,9 @@ motion alone (no convective term is ever assembled). One step
    100 × 400 diverged with it at Courant 4 by τ = 2.3) →
    :math:`\hat u`. The density and viscosity are cell-wise constants (DG0)
    from each cell's phase-1 fraction: sharp within one cell, no smoothing
-   band. With gravity (two phases) the fraction is the cut-cell area where
+   band. With gravity (two phases) and ``flow.density = "level_set"`` (the
+   default; ``"particles"``: the fraction of the cell's particles in phase 1)
+   the fraction is the cut-cell area where
    the P1 level set ``dist`` is positive (below), the interface of the
    balanced force, and ``dist`` is first shifted by one constant so that
    area keeps its initial value (:meth:`LagrangianFlow._conserve_volume`;
@@ -88,14 +88,11 @@ interface inside cells stays at rest to solver tolerance. With
 the particles get no explicit source.
 
 ``flow.extra_pass = true`` repeats steps 1–4 once from the start-of-step
-particles with :math:`\theta = 1/2` in eq. 2.10 (positions with the mean
-of :math:`u^n` and the first pass's :math:`u^{n+1}`) and the source
-:math:`a` averaged the same way — step 6 of the paper. With the source on
-the path its particles follow the streamline of the blended velocity
-:math:`\tfrac12(u^n + u^{n+1})` (the limit of X-IVAS sub-steps
-:math:`h \to 0`), the source integrated inside that move; its source is
-the mean of the start-of-step :math:`a^n` (consistent pressure) and the first
-pass's :math:`a` (pressure :math:`p^n + \delta p`).
+particles with :math:`\theta = 1/2` in eq. 2.10 — step 6 of the paper: the
+particles follow the streamline of :math:`\tfrac12(u^n + u^{n+1})` (the limit
+of X-IVAS sub-steps :math:`h \to 0`) with the source integrated inside that
+move, the mean of the start-of-step :math:`a^n` (consistent pressure) and the
+first pass's :math:`a` (pressure :math:`p^n + \delta p`).
 
 Operators per step (``fem.COUNTERS``): 1 matrix assembly (pressure; +1 for
 the viscous matrix when the phases' viscosities differ), 4 vector
@@ -164,7 +161,7 @@ from pfem2x import particles as P
 from pfem2x.compat import MPI, PETSc
 from pfem2x.mesh import Domain
 from pfem2x.physics.flow.balanced import JumpForce
-from pfem2x.physics.flow.capillary import CapillaryForce
+from pfem2x.physics.flow.capillary import CapillaryForce, capillary_increment
 from pfem2x.physics.flow.interface import positive_fraction
 from pfem2x.physics.flow.problem import FlowSolver
 from pfem2x.physics.flow.projection import PressureProjection
@@ -527,6 +524,21 @@ class LagrangianFlow(ParticleTransfers, FlowSolver):
             proj.correct(self.u, self.p, dt, mass_ready=True)
             self._update_force()
 
+    def _capillary_increment(self, dt: float) -> None:
+        """``flow.capillary_increment`` (:func:`.capillary.capillary_increment`; lumped mass)."""
+        proj = self.projection
+
+        def mass(x: Any, y: Any) -> None:
+            y.pointwiseMult(x, proj.b_mass)
+            y.scale(1.0 / dt)
+
+        def project() -> None:
+            proj.solve_increment()
+            proj.correct(self.u, self.p, dt, mass_ready=True)
+            self._update_force()
+
+        capillary_increment(self.u, self.u_star, self.m_solver, mass, project)
+
     def _viscous_operator(self, dt: float) -> None:
         """``M_rho/dt + K_mu`` and its right-hand side ``M_rho u_hat/dt`` (needs ``b_mass``)."""
         b_mass = self.projection.b_mass
@@ -548,27 +560,15 @@ class LagrangianFlow(ParticleTransfers, FlowSolver):
 
     def _pass(self, dt: float, theta: float) -> None:
         """Steps 1–4 of one pass."""
-        c = self.cloud_
         with self.timer("particles"):
             self._move(dt, theta)
             self._project_velocity()
             self._update_phase_fields()
         self._mesh_step(dt)
+        if self.capillary is not None and self.viscous and self.scene.flow.capillary_increment:
+            self._capillary_increment(dt)
         with self.timer("particles"):
-            self.du.x.array[:] = self.u.x.array - self.u_hat.x.array
-            P.add_increment(c, "u", self.du)
-            a = self.pic_fraction
-            al = self.pic_fraction_light
-            alpha = None
-            if a > 0.0 or al > 0.0:
-                up = c.field("u")
-                alpha = np.full(c.n, a)
-                if al > 0.0:
-                    alpha[c.field("phase") < 0.5] = al
-                up *= 1.0 - alpha[:, None]
-                up += alpha[:, None] * P.evaluate(c, self.u)
-            if self.affine:
-                self._set_affine(alpha)
+            self._increment_particles()
 
     def _consistent_pressure(self) -> None:
         r"""``p`` from the velocity ``u^n`` and the body force, and the source ``a`` from it.

@@ -1,6 +1,6 @@
 r"""Particle–mesh transfers of the PFEM-2 flow frame (:mod:`~pfem2x.physics.flow.pfem2`).
 
-Step 2's velocity projection (plain, mass-weighted, affine), the cell phase
+Step 2's velocity projection (plain, mass-weighted, affine), step 4's increment, the cell phase
 fraction of the particles and the volume-keeping shift of the level set
 ``dist``, and step 5's population control, as a mixin of
 :class:`~pfem2x.physics.flow.pfem2.LagrangianFlow` (its attributes: ``cloud_``,
@@ -26,6 +26,8 @@ class ParticleTransfers:
     cloud_: Any
     affine: bool
     mass_weighted: bool
+    pic_fraction: float
+    pic_fraction_light: float
     level_shift: float
 
     def _particle_fraction(self) -> np.ndarray:
@@ -91,6 +93,24 @@ class ParticleTransfers:
         self.level_shift = b
         arr += b
         self.cloud_.field("dist")[:] += b
+
+    def _increment_particles(self) -> None:
+        """Step 4: ``u_p += (u^{n+1} - u_hat)(x_p)``, the PIC blend, the affine part."""
+        c = self.cloud_
+        self.du.x.array[:] = self.u.x.array - self.u_hat.x.array
+        P.add_increment(c, "u", self.du)
+        a = self.pic_fraction
+        al = self.pic_fraction_light
+        alpha = None
+        if a > 0.0 or al > 0.0:
+            up = c.field("u")
+            alpha = np.full(c.n, a)
+            if al > 0.0:
+                alpha[c.field("phase") < 0.5] = al
+            up *= 1.0 - alpha[:, None]
+            up += alpha[:, None] * P.evaluate(c, self.u)
+        if self.affine:
+            self._set_affine(alpha)
 
     def _set_affine(self, alpha: np.ndarray | None = None) -> None:
         """``C_p = grad u(x_p)`` of the mesh velocity (constant per P1 cell), ``flow.affine``."""
