@@ -193,25 +193,8 @@ def write_case(case: Path, spec: BubbleSpec, pb: Bubble | None = None) -> None:
     foam_file = interfoam_case._foam_file
     case.mkdir(parents=True, exist_ok=True)
     nx, ny = spec.n, 2 * spec.n
-    dz = (pb.x1 - pb.x0) / nx
     end = math.ceil(spec.t_end / spec.write_every - 1e-9) * spec.write_every
-    v = [(pb.x0, pb.y0), (pb.x1, pb.y0), (pb.x1, pb.y1), (pb.x0, pb.y1)]
-    verts = " ".join(f"({x:g} {y:g} {z:g})" for z in (0.0, dz) for x, y in v)
-    foam_file(case / "system/blockMeshDict", "dictionary", "blockMeshDict", f"""
-scale 1;
-vertices ( {verts} );
-blocks ( hex (0 1 2 3 4 5 6 7) ({nx} {ny} 1) simpleGrading (1 1 1) );
-edges ();
-boundary
-(
-    left   {{ type wall; faces ((0 4 7 3)); }}
-    right  {{ type wall; faces ((1 2 6 5)); }}
-    bottom {{ type wall; faces ((0 1 5 4)); }}
-    top    {{ type wall; faces ((3 7 6 2)); }}
-    frontAndBack {{ type empty; faces ((0 3 2 1) (4 5 6 7)); }}
-);
-mergePatchPairs ();
-""")  # fmt: skip
+    interfoam_case.write_block_mesh(case, pb, nx, ny)
     max_dt = spec.max_dt if spec.max_dt is not None else spec.write_every
     dy = (pb.y1 - pb.y0) / ny
     foam_file(case / "system/controlDict", "dictionary", "controlDict", f"""
@@ -271,44 +254,7 @@ functions
     }}
 }}
 """)  # fmt: skip
-    foam_file(case / "system/fvSchemes", "dictionary", "fvSchemes", """
-ddtSchemes { default Euler; }
-gradSchemes { default Gauss linear; }
-divSchemes
-{
-    div(rhoPhi,U) Gauss linearUpwind grad(U);
-    div(phi,alpha) Gauss vanLeer;
-    div(phirb,alpha) Gauss linear;
-    div(((rho*nuEff)*dev2(T(grad(U))))) Gauss linear;
-}
-laplacianSchemes { default Gauss linear corrected; }
-interpolationSchemes { default linear; }
-snGradSchemes { default corrected; }
-""")  # fmt: skip
-    foam_file(case / "system/fvSolution", "dictionary", "fvSolution", """
-solvers
-{
-    "alpha.bubble.*"
-    {
-        nAlphaCorr 2; nAlphaSubCycles 1; cAlpha 1; MULESCorr yes; nLimiterIter 5;
-        solver smoothSolver; smoother symGaussSeidel; tolerance 1e-8; relTol 0;
-    }
-    "pcorr.*" { solver PCG; preconditioner DIC; tolerance 1e-5; relTol 0; }
-    p_rgh { solver PCG; preconditioner DIC; tolerance 1e-7; relTol 0.05; }
-    p_rghFinal { $p_rgh; relTol 0; }
-    U { solver smoothSolver; smoother symGaussSeidel; tolerance 1e-6; relTol 0; }
-}
-PIMPLE
-{
-    momentumPredictor no;
-    nOuterCorrectors 1;
-    nCorrectors 3;
-    nNonOrthogonalCorrectors 0;
-    pRefCell 0;
-    pRefValue 0;
-}
-relaxationFactors { equations { ".*" 1; } }
-""")  # fmt: skip
+    interfoam_case.write_numerics(case, "bubble")
     nu_b, nu_o = pb.mu_bubble / pb.rho_bubble, pb.mu_outer / pb.rho_outer
     foam_file(case / "constant/transportProperties", "dictionary", "transportProperties", f"""
 phases (bubble outer);

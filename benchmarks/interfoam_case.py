@@ -45,6 +45,7 @@ import time
 import tomllib
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -144,27 +145,10 @@ def write_case(case: Path, spec: CaseSpec, pb: Problem | None = None) -> None:
     pb = pb or problem_from_scene()
     case.mkdir(parents=True, exist_ok=True)
     nx, ny = spec.nx, spec.ny
-    dz = (pb.x1 - pb.x0) / nx
     t_end = spec.tau_end / pb.time_factor
     # end on a write time at or after tau_end, so that the tips can be interpolated there
     end = math.ceil(t_end / spec.write_every - 1e-9) * spec.write_every
-    v = [(pb.x0, pb.y0), (pb.x1, pb.y0), (pb.x1, pb.y1), (pb.x0, pb.y1)]
-    verts = " ".join(f"({x:g} {y:g} {z:g})" for z in (0.0, dz) for x, y in v)
-    _foam_file(case / "system/blockMeshDict", "dictionary", "blockMeshDict", f"""
-scale 1;
-vertices ( {verts} );
-blocks ( hex (0 1 2 3 4 5 6 7) ({nx} {ny} 1) simpleGrading (1 1 1) );
-edges ();
-boundary
-(
-    left   {{ type wall; faces ((0 4 7 3)); }}
-    right  {{ type wall; faces ((1 2 6 5)); }}
-    bottom {{ type wall; faces ((0 1 5 4)); }}
-    top    {{ type wall; faces ((3 7 6 2)); }}
-    frontAndBack {{ type empty; faces ((0 3 2 1) (4 5 6 7)); }}
-);
-mergePatchPairs ();
-""")  # fmt: skip
+    write_block_mesh(case, pb, nx, ny)
     if spec.max_co is not None:
         dy = (pb.y1 - pb.y0) / ny
         step = (
@@ -202,44 +186,7 @@ functions
     }}
 }}
 """)  # fmt: skip
-    _foam_file(case / "system/fvSchemes", "dictionary", "fvSchemes", """
-ddtSchemes { default Euler; }
-gradSchemes { default Gauss linear; }
-divSchemes
-{
-    div(rhoPhi,U) Gauss linearUpwind grad(U);
-    div(phi,alpha) Gauss vanLeer;
-    div(phirb,alpha) Gauss linear;
-    div(((rho*nuEff)*dev2(T(grad(U))))) Gauss linear;
-}
-laplacianSchemes { default Gauss linear corrected; }
-interpolationSchemes { default linear; }
-snGradSchemes { default corrected; }
-""")  # fmt: skip
-    _foam_file(case / "system/fvSolution", "dictionary", "fvSolution", """
-solvers
-{
-    "alpha.heavy.*"
-    {
-        nAlphaCorr 2; nAlphaSubCycles 1; cAlpha 1; MULESCorr yes; nLimiterIter 5;
-        solver smoothSolver; smoother symGaussSeidel; tolerance 1e-8; relTol 0;
-    }
-    "pcorr.*" { solver PCG; preconditioner DIC; tolerance 1e-5; relTol 0; }
-    p_rgh { solver PCG; preconditioner DIC; tolerance 1e-7; relTol 0.05; }
-    p_rghFinal { $p_rgh; relTol 0; }
-    U { solver smoothSolver; smoother symGaussSeidel; tolerance 1e-6; relTol 0; }
-}
-PIMPLE
-{
-    momentumPredictor no;
-    nOuterCorrectors 1;
-    nCorrectors 3;
-    nNonOrthogonalCorrectors 0;
-    pRefCell 0;
-    pRefValue 0;
-}
-relaxationFactors { equations { ".*" 1; } }
-""")  # fmt: skip
+    write_numerics(case, "heavy")
     _foam_file(case / "system/decomposeParDict", "dictionary", "decomposeParDict", f"""
 numberOfSubdomains {spec.nproc};
 method simple;
@@ -275,6 +222,72 @@ value (0 {-pb.g:g} 0);
 
 
 # --------------------------------------------------------------------------- running
+def write_block_mesh(case: Path, pb: Any, nx: int, ny: int) -> None:
+    """``system/blockMeshDict``: ``nx`` x ``ny`` hexahedra in one layer over
+    ``[pb.x0, pb.x1] x [pb.y0, pb.y1]``, walls left/right/bottom/top, ``empty`` front/back."""
+    dz = (pb.x1 - pb.x0) / nx
+    v = [(pb.x0, pb.y0), (pb.x1, pb.y0), (pb.x1, pb.y1), (pb.x0, pb.y1)]
+    verts = " ".join(f"({x:g} {y:g} {z:g})" for z in (0.0, dz) for x, y in v)
+    _foam_file(case / "system/blockMeshDict", "dictionary", "blockMeshDict", f"""
+scale 1;
+vertices ( {verts} );
+blocks ( hex (0 1 2 3 4 5 6 7) ({nx} {ny} 1) simpleGrading (1 1 1) );
+edges ();
+boundary
+(
+    left   {{ type wall; faces ((0 4 7 3)); }}
+    right  {{ type wall; faces ((1 2 6 5)); }}
+    bottom {{ type wall; faces ((0 1 5 4)); }}
+    top    {{ type wall; faces ((3 7 6 2)); }}
+    frontAndBack {{ type empty; faces ((0 3 2 1) (4 5 6 7)); }}
+);
+mergePatchPairs ();
+""")  # fmt: skip
+
+
+def write_numerics(case: Path, alpha: str) -> None:
+    """``system/fvSchemes`` and ``system/fvSolution``: the damBreak tutorial's numerics
+    (MULES with ``cAlpha 1``, PIMPLE without momentum predictor) for ``alpha.<alpha>``."""
+    _foam_file(case / "system/fvSchemes", "dictionary", "fvSchemes", """
+ddtSchemes { default Euler; }
+gradSchemes { default Gauss linear; }
+divSchemes
+{
+    div(rhoPhi,U) Gauss linearUpwind grad(U);
+    div(phi,alpha) Gauss vanLeer;
+    div(phirb,alpha) Gauss linear;
+    div(((rho*nuEff)*dev2(T(grad(U))))) Gauss linear;
+}
+laplacianSchemes { default Gauss linear corrected; }
+interpolationSchemes { default linear; }
+snGradSchemes { default corrected; }
+""")  # fmt: skip
+    _foam_file(case / "system/fvSolution", "dictionary", "fvSolution", f"""
+solvers
+{{
+    "alpha.{alpha}.*"
+    {{
+        nAlphaCorr 2; nAlphaSubCycles 1; cAlpha 1; MULESCorr yes; nLimiterIter 5;
+        solver smoothSolver; smoother symGaussSeidel; tolerance 1e-8; relTol 0;
+    }}
+    "pcorr.*" {{ solver PCG; preconditioner DIC; tolerance 1e-5; relTol 0; }}
+    p_rgh {{ solver PCG; preconditioner DIC; tolerance 1e-7; relTol 0.05; }}
+    p_rghFinal {{ $p_rgh; relTol 0; }}
+    U {{ solver smoothSolver; smoother symGaussSeidel; tolerance 1e-6; relTol 0; }}
+}}
+PIMPLE
+{{
+    momentumPredictor no;
+    nOuterCorrectors 1;
+    nCorrectors 3;
+    nNonOrthogonalCorrectors 0;
+    pRefCell 0;
+    pRefValue 0;
+}}
+relaxationFactors {{ equations {{ ".*" 1; }} }}
+""")  # fmt: skip
+
+
 def _foam(cmd: str, case: Path, log: str, timeout: float | None = None) -> int:
     """Run an OpenFOAM command line in ``case`` with the v1912 environment; return its code."""
     if not FOAM_BASHRC.is_file():
