@@ -153,6 +153,22 @@ def test_bad_cli(args, needles):
     assert_one_error(cli(*args), *needles)
 
 
+@pytest.mark.parametrize(
+    "scene, key, expr",
+    [
+        ("gaussian-hill", "transport.initial", '"1/x"'),
+        ("gaussian-hill", "transport.initial", '"log(x - 10)"'),
+        ("taylor-green", "flow.initial_velocity", '["1/(x - x)", "0"]'),
+    ],
+)
+def test_initial_field_not_finite(scene, key, expr, tmp_path):
+    """A NaN/Inf initial field is bad input (exit 2, the key named), not a blow-up (exit 3)."""
+    out = tmp_path / "out"
+    res = cli("run", scene, "--variant", "small", "--set", f"{key}={expr}", "--out", str(out))
+    assert_one_error(res, key, "not finite")
+    assert not out.exists()
+
+
 def test_existing_output_folder_untouched(tmp_path):
     out = tmp_path / "out"
     out.mkdir()

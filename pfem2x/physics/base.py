@@ -12,9 +12,9 @@ import numpy as np
 
 from pfem2x.compat import MPI
 from pfem2x.mesh import Domain
-from pfem2x.scene import Scene
+from pfem2x.scene import Scene, SceneError
 
-__all__ = ["Diverged", "Solver", "require_finite"]
+__all__ = ["Diverged", "Solver", "require_finite", "require_finite_input"]
 
 
 class Diverged(FloatingPointError):
@@ -38,6 +38,39 @@ def require_finite(comm: MPI.Comm, what: str, values: np.ndarray) -> None:
     bad = 0 if np.all(np.isfinite(values)) else 1
     if comm.allreduce(bad, op=MPI.MAX):
         raise Diverged(f"{what} is not finite")
+
+
+def require_finite_input(comm: MPI.Comm, key: str, values: np.ndarray, coords: np.ndarray) -> None:
+    """Raise :class:`~pfem2x.scene.SceneError` naming ``key`` if ``values`` is not finite.
+
+    For fields a scene key sets (an initial condition): NaN or Inf there is
+    bad input, not a blow-up. The message gives the number of nodes and the
+    first such node of the lowest rank that has one. Collective: every rank
+    enters the reductions and every rank raises.
+
+    Parameters
+    ----------
+    comm
+        The communicator of the ranks that share the field.
+    key
+        The scene key (``section.key``) whose expression gave ``values``.
+    values
+        This rank's nodal values, one row (or value) per node of ``coords``.
+    coords
+        This rank's node coordinates (rows of at least 2 entries).
+    """
+    vals = np.asarray(values).reshape(len(coords), -1)
+    bad = ~np.all(np.isfinite(vals), axis=1)
+    n_bad = int(comm.allreduce(int(bad.sum()), op=MPI.SUM))
+    if n_bad == 0:
+        return
+    first = comm.allgather(coords[np.flatnonzero(bad)[0]] if bad.any() else None)
+    xy = next(c for c in first if c is not None)
+    where = ", ".join(f"{float(c):.6g}" for c in xy[: max(1, coords.shape[1])])
+    raise SceneError(
+        f"{key}: not finite at {n_bad} node(s) of the mesh, the first at ({where}); "
+        "give an expression that is finite on the whole domain"
+    )
 
 
 class Solver:

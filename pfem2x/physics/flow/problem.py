@@ -35,7 +35,7 @@ from pfem2x.cases import make_case
 from pfem2x.compat import MPI, PETSc
 from pfem2x.expr import Expression
 from pfem2x.mesh import Domain
-from pfem2x.physics.base import Diverged, Solver
+from pfem2x.physics.base import Diverged, Solver, require_finite_input
 from pfem2x.physics.flow.capillary import capillary_dt_limit
 from pfem2x.physics.flow.exact import ExactFlowError
 from pfem2x.physics.flow.interface import InterfaceGeometry
@@ -151,6 +151,10 @@ class FlowSolver(Solver):
             arr = self.u.x.array.reshape(-1, gdim)
             for i, e in enumerate(pr.initial_velocity):
                 arr[:, i] = e(self.coords, 0.0)
+            n = self.Q.dofmap.index_map.size_local
+            require_finite_input(
+                self.comm, "flow.initial_velocity", arr[:n], self.coords[:n, :gdim]
+            )
         self.H = domain.min_h()
         self.eps = pr.interface_width * self.H
         tab = domain.table

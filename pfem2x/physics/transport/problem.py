@@ -21,7 +21,7 @@ from pfem2x.compat import MPI, PETSc
 from pfem2x.expr import Expression
 from pfem2x.mesh import Domain
 from pfem2x.periodic import PeriodicConstraint, PeriodicError
-from pfem2x.physics.base import Solver
+from pfem2x.physics.base import Solver, require_finite_input
 from pfem2x.scene import Scene, SceneError
 
 __all__ = [
@@ -150,6 +150,10 @@ class TransportBase(Solver):
         self.coords = self.V.tabulate_dof_coordinates()
         self.T = compat.dolfinx.fem.Function(self.V, name=self.problem.field)
         interpolate_expr(self.T, self.problem.initial, 0.0, self.coords)
+        n = self.V.dofmap.index_map.size_local
+        require_finite_input(
+            self.comm, "transport.initial", self.T.x.array[:n], self.coords[:n, : domain.gdim]
+        )
         self.dx = ufl.dx(domain=mesh)
         self._err = compat.dolfinx.fem.Function(self.V)
         self._err_form = compat.form(self._err**2 * self.dx)
