@@ -66,6 +66,7 @@ from pfem2x import compat
 from pfem2x.compat import MPI
 from pfem2x.physics.flow.curvature import (
     circle_distance,
+    circle_misfit,
     closest_segment,
     distance_curvature,
     oriented_segments,
@@ -216,6 +217,12 @@ class CapillaryForce:
         ``samples()`` returns this rank's ``(points (p, 2), values (p,))`` (the PFEM-2
         particles' ``dist``); default: the owned nodes of the cut cells and their values.
         Samples farther than ``1.5 h`` from the interface are not used.
+    stretch_tolerance
+        The distance fit is used where its :math:`|\\lambda - 1|` is at most this (samples
+        that are still a signed distance; PFEM-2's ``dist`` is carried, never re-distanced,
+        and a flow stretches it: the rising bubble's :math:`\\lambda` reached 6 by t = 2 at
+        h = 1/40), and where its circle passes within ``h/2`` of the iso-line's end points
+        around the segment; elsewhere the end-point fit (:func:`.segment_curvature`).
     """
 
     def __init__(
@@ -227,10 +234,17 @@ class CapillaryForce:
         h: float,
         fit_radius: float = 3.0,
         samples: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None,
+        stretch_tolerance: float = np.inf,
     ):
         self.interface = interface
         self.samples = samples
         self._sample_band = 1.5 * float(h)
+        #: the distance fit is used where its circle passes within this distance of the
+        #: iso-line's end points around the segment (:func:`.curvature.circle_misfit`)
+        self.misfit_tolerance = 0.5 * float(h)
+        self.misfit = np.zeros(0)  # of the last update, per segment
+        #: ... and where the samples' gradient is within this of 1 (the fit's lambda)
+        self.stretch_tolerance = float(stretch_tolerance)
         self._n_nodes = Q.dofmap.index_map.size_local
         self.sigma = float(sigma)
         self.band = float(band)
@@ -350,6 +364,11 @@ class CapillaryForce:
         allsegs, normals = both[:, :2], both[:, 2]
         pts, dvals = self._gathered_samples(phi, marked)
         kap, ok, coef = distance_curvature(allsegs, normals, pts, dvals, self.radius)
+        # the fitted circle must pass through the iso-line's end points around the segment
+        self.misfit = circle_misfit(allsegs, normals, coef, allsegs.reshape(-1, 2), self.radius)
+        ok &= self.misfit <= self.misfit_tolerance
+        # and the samples must be a signed distance (PFEM-2's dist is carried, not re-distanced)
+        ok &= np.abs(coef[:, 0] - 1.0) <= self.stretch_tolerance
         self._circles = (allsegs, normals, coef, ok)
         self.fallback_segments = int(np.count_nonzero(~ok))
         if not ok.all():

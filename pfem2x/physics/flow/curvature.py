@@ -21,6 +21,7 @@ from pfem2x.physics.flow.interface import InterfaceGeometry, segment_distance
 
 __all__ = [
     "circle_distance",
+    "circle_misfit",
     "closest_segment",
     "distance_curvature",
     "oriented_segments",
@@ -286,13 +287,13 @@ def distance_curvature(
     -------
     kappa, ok, coef
         ``(m,)`` curvatures and whether the fit had at least six samples and converged
-        to finite values (where not, ``kappa`` is 0); ``(m, 3)`` the circles' ``(A, B, D)``
-        (in the frame of each segment's midpoint and normal).
+        to finite values (where not, ``kappa`` is 0); ``(m, 4)`` the fits'
+        :math:`(\\lambda, A, B, D)` (in the frame of each segment's midpoint and normal).
     """
     m = len(segs)
     kappa, ok = np.zeros(m), np.zeros(m, dtype=bool)
     if m == 0 or len(points) == 0:
-        return kappa, ok, np.zeros((m, 3))
+        return kappa, ok, np.zeros((m, 4))
     mid = segs.mean(axis=1)
     ci, pi = _pairs_within(mid, points, radius)
     d = points[pi] - mid[ci]
@@ -304,8 +305,9 @@ def distance_curvature(
     p = np.zeros((m, 4))
     p[:, 0] = 1.0  # (lambda, A, B, D), from the straight line
     ij = [(i, j) for i in range(4) for j in range(i, 4)]
-    for _ in range(iterations):
-        dist, dA, dB, dD = _circle_distance(s, eta, p[ci, 1], p[ci, 2], p[ci, 3])
+    for _ in range(iterations):  # (a fit that runs away ends non-finite: not ok)
+        with np.errstate(all="ignore"):
+            dist, dA, dB, dD = _circle_distance(s, eta, p[ci, 1], p[ci, 2], p[ci, 3])
         lam = p[ci, 0]
         J = np.stack([dist, lam * dA, lam * dB, lam * dD], axis=1)
         res = w * (y - lam * dist)
@@ -314,12 +316,34 @@ def distance_curvature(
             M[:, i, j] = M[:, j, i] = np.bincount(ci, weights=w * J[:, i] * J[:, j], minlength=m)
         rhs = np.stack([np.bincount(ci, weights=res * J[:, i], minlength=m) for i in range(4)], 1)
         M += (np.einsum("cii->c", M)[:, None, None] * 1e-13 + 1e-300) * np.eye(4)[None]
+        bad = ~np.isfinite(M).all(axis=(1, 2)) | ~np.isfinite(rhs).all(axis=1)
+        M[bad], rhs[bad] = np.eye(4), np.nan
         p += np.linalg.solve(M, rhs[:, :, None])[:, :, 0]
     A, B, D = p[:, 1], p[:, 2], p[:, 3]
     with np.errstate(invalid="ignore"):
         kap = 2.0 * A / np.sqrt(np.maximum(1.0 + B * B - 4.0 * A * D, 1e-300))
     ok = (np.bincount(ci, minlength=m) >= 6) & np.isfinite(kap) & (p[:, 0] > 0.0)
-    return np.where(ok, kap, 0.0), ok, p[:, 1:]
+    return np.where(ok, kap, 0.0), ok, p
+
+
+def circle_misfit(
+    segs: np.ndarray, normals: np.ndarray, coef: np.ndarray, points: np.ndarray, radius: float
+) -> np.ndarray:
+    """Largest distance of the ``points`` near each segment's midpoint (``radius``) to its circle.
+
+    ``segs``, ``normals``, ``coef`` as :func:`distance_curvature` fitted them; ``points``
+    ``(p, 2)``, e.g. the end points of the interface's segments (0 where none is near).
+    """
+    m = len(segs)
+    out = np.zeros(m)
+    if m == 0 or len(points) == 0:
+        return out
+    mid = segs.mean(axis=1)
+    ci, pi = _pairs_within(mid, points, radius)
+    with np.errstate(all="ignore"):
+        d = circle_distance(points[pi], segs[ci], normals[ci], coef[ci])
+    np.maximum.at(out, ci, np.where(np.isfinite(d), np.abs(d), np.inf))
+    return out
 
 
 def circle_distance(
@@ -327,13 +351,13 @@ def circle_distance(
 ) -> np.ndarray:
     """Signed distance of each point ``(n, 2)`` to the circle of its segment (one each).
 
-    ``segs`` ``(n, 2, 2)``, ``normals`` ``(n, 2)`` and ``coef`` ``(n, 3)`` as
+    ``segs`` ``(n, 2, 2)``, ``normals`` ``(n, 2)`` and ``coef`` ``(n, 4)`` as
     :func:`distance_curvature` fitted them (> 0 on the side of the normal).
     """
     d = points - segs.mean(axis=1)
     s = d[:, 0] * normals[:, 1] - d[:, 1] * normals[:, 0]
     eta = np.einsum("kj,kj->k", d, normals)
-    return _circle_distance(s, eta, coef[:, 0], coef[:, 1], coef[:, 2])[0]
+    return _circle_distance(s, eta, coef[:, -3], coef[:, -2], coef[:, -1])[0]
 
 
 def smooth_along(segs: np.ndarray, values: np.ndarray, radius: float) -> np.ndarray:

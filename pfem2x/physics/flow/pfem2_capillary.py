@@ -35,7 +35,7 @@ class ParticleCapillary:
         if self.dist is None:
             self.dist = compat.dolfinx.fem.Function(self.Q, name="dist")
         # band: every cell a fraction between 0 and 1 may sit in has its nodes in it;
-        # the curvature: fitted to the particles' signed distances
+        # the curvature: fitted to the particles' signed distances while they are ones
         self.capillary = CapillaryForce(
             self.Q,
             self.interface,
@@ -43,6 +43,7 @@ class ParticleCapillary:
             2.0 * self.H,
             self.H,
             samples=lambda: (self.cloud_.x, self.cloud_.field("dist")),
+            stretch_tolerance=0.05,
         )
 
     def _seed_capillary_dist(self, region: Any) -> None:
