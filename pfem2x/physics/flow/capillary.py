@@ -26,13 +26,27 @@ Where :math:`H_h` and :math:`H_w` are one constant (away from the interface)
 \kappa H_h)` is a discrete gradient: a pressure jump :math:`\sigma\kappa`
 balances it to round-off (a circle with a uniform curvature stays at rest).
 
-Curvature of a segment: a weighted least-squares circle through the end
-points of the segments within ``fit_radius`` cells of its midpoint (each end
-point moved to the root of a quadratic along its cut edge,
-:func:`refined_segments`: the P1 iso-line's chords scatter the fit 60 x more), in the
-frame :math:`(s, \eta)` of the cell's gradient (tangent, normal): :math:`\eta =
-A(s^2 + \eta^2) + Bs + D`, :math:`\kappa = 2A/\sqrt{1 + B^2 - 4AD}` (exact
-for a circle, well conditioned for a straight line); then averaged along the
+Curvature of a segment (:mod:`pfem2x.physics.flow.curvature`): a weighted
+least-squares fit of the exact signed distance of a circle (times a stretch
+:math:`\lambda`) to the signed-distance samples within ``fit_radius`` cells of
+its midpoint (:func:`distance_curvature`; the level set: the nodes of the cut
+cells, which the re-distancing keeps; PFEM-2: the particles' ``dist``), in the
+frame :math:`(s, \eta)` of the cell's gradient (tangent, normal): the circle
+:math:`\eta = A(s^2 + \eta^2) + Bs + D`, :math:`\kappa = 2A/\sqrt{1 + B^2 - 4AD}`
+(exact for a circle whatever the samples' positions, well conditioned for a
+straight line). The samples start as the distance to the region's boundary
+sampled below the mesh size (:func:`region_distance`), and the level set's
+re-distancing gives the nodes near the interface (not of cut cells) their
+distance to the fitted circles (:meth:`CapillaryForce.redistance`): a circle
+stays a circle, and the static drop stays at rest to round-off (docs/RESULTS.md).
+Where the fit is not trusted (its circle farther than ``h/2`` from the
+iso-line's end points around the segment; PFEM-2's carried ``dist`` stretched
+by more than 5 %; fewer than six samples) the curvature is the end-point fit:
+a weighted least-squares circle of the same form through the end points of
+the segments within ``fit_radius`` cells (each moved to the root of a
+quadratic along its cut edge, :func:`refined_segments`; :func:`segment_curvature`;
+its noise, 2e-4 of :math:`1/R` on a circle at h = 1/40, drove spurious currents
+:math:`\mu|u|/\sigma` of 1e-5 to 1e-4). Then the curvatures are averaged along the
 interface over the same radius (:func:`smooth_along`: the saw-tooth
 capillary waves of the P1 iso-line at h = 1/80 lowered the rising bubble's
 circularity by 3 % without).

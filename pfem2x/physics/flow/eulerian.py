@@ -9,7 +9,11 @@ One step:
 1. level set :math:`\phi` (> 0 in the phase that has a ``region``): Crank–Nicolson
    + SUPG with the velocity :math:`u^n`, then geometric re-distancing every
    ``flow.reinit_every`` steps (signed distance to the P1 zero iso-line, which
-   is kept; values clipped at :math:`\pm 8\varepsilon`);
+   is kept; values clipped at :math:`\pm 8\varepsilon`; with surface tension
+   the nodes within :math:`\varepsilon + H` get the distance to the circles the
+   curvature fit found, :meth:`.capillary.CapillaryForce.redistance`, and
+   :math:`\phi` starts as the distance to the region's boundary sampled below
+   H, :func:`.curvature.region_distance`);
 2. :math:`\rho, \mu` from :math:`\phi^{n+1}` with a smoothed Heaviside of
    half-width :math:`\varepsilon` = ``flow.interface_width`` · H (H: shortest edge);
 3. velocity predictor (incremental pressure-correction, Guermond–Quartapelle):
