@@ -407,13 +407,16 @@ def test_static_drop_ranks_agree(shared_tmp, frame):
     rb = Simulation(
         sc, shared_tmp / f"self-{frame}-{comm.rank}", comm=MPI.COMM_SELF, quiet=True
     ).run()
-    # solver tolerance (flow.rtol = 1e-10) on different partitions: measured 2.4e-9 relative
-    # in the pressure jump (level set; PFEM-2 3e-12), 1.1e-10 in the speed (level set; PFEM-2
-    # 3e-13), itself about 1e-7 (the samples of the curvature fit gathered in another order)
+    # solver tolerance (flow.rtol = 1e-10) on different partitions. The currents are now
+    # about 1e-7, driven by round-off and the solvers' tolerance, and their
+    # partition differences grow over the steps. Measured, level set / PFEM-2: pressure jump
+    # 6.4e-9 / 3e-12 relative on DOLFINx 0.5.2, 1.7e-8 / 2e-11 on 0.11 (GAMG); drop volume
+    # 2e-11 / 0 and 1.7e-10 / 0; speed 3e-11 / 3e-13 and 4.0e-10 / 2.4e-13 (with the
+    # end-point fit: currents of 1e-4, all three 1e-11 on both)
     for ha, hb in zip(ra.history, rb.history, strict=True):
-        assert ha["pressure_jump"] == pytest.approx(hb["pressure_jump"], rel=1e-8)
-        assert ha["volume_drop"] == pytest.approx(hb["volume_drop"], rel=1e-10)
-        assert ha["speed_max"] == pytest.approx(hb["speed_max"], rel=1e-4, abs=1e-9)
+        assert ha["pressure_jump"] == pytest.approx(hb["pressure_jump"], rel=1e-7)
+        assert ha["volume_drop"] == pytest.approx(hb["volume_drop"], rel=1e-9)
+        assert ha["speed_max"] == pytest.approx(hb["speed_max"], rel=1e-4, abs=2e-9)
         assert ha["speed_max"] < 1e-6
 
 

@@ -81,7 +81,8 @@ from pfem2x.compat import MPI
 from pfem2x.physics.flow.curvature import (
     circle_distance,
     circle_misfit,
-    closest_segment,
+    closest_mean,
+    closest_pairs,
     distance_curvature,
     oriented_segments,
     refined_segments,
@@ -298,11 +299,15 @@ class CapillaryForce:
         if not len(allsegs):
             return
         idx = np.flatnonzero(~self._kept & (np.abs(phi) < band))
-        seg = closest_segment(self._xy[idx], allsegs)
-        good = ok[seg]
-        idx, seg = idx[good], seg[good]
-        d = circle_distance(self._xy[idx], allsegs[seg], normals[seg], coef[seg])
-        phi[idx] = np.where(phi[idx] >= 0.0, 1.0, -1.0) * np.abs(d)
+        pi, si = closest_pairs(self._xy[idx], allsegs, 1e-9 * self.radius)
+        good = ok[si]  # (tied segments: the mean of their circles' distances)
+        pi, si = pi[good], si[good]
+        d = np.abs(circle_distance(self._xy[idx[pi]], allsegs[si], normals[si], coef[si]))
+        cnt = np.bincount(pi, minlength=len(idx))
+        has = cnt > 0
+        dm = np.bincount(pi, weights=d, minlength=len(idx))[has] / cnt[has]
+        idx = idx[has]
+        phi[idx] = np.where(phi[idx] >= 0.0, 1.0, -1.0) * dm
 
     def force(self, H_w: Any) -> Any:
         """The UFL force :math:`f_h` with the frame's phase weight ``H_w``."""
@@ -408,7 +413,7 @@ class CapillaryForce:
         near = mark | (np.abs(phi) < self.band)
         kap = np.zeros(len(phi))
         if len(allsegs) and near.any():
-            kap[near] = kap_all[closest_segment(self._xy[near], allsegs)]
+            kap[near] = closest_mean(self._xy[near], allsegs, kap_all, 1e-9 * self.radius)
         self.kappa.x.array[:] = kap
         self.Pi.x.array[:] = self.sigma * kap * hpos
         lo = float(kap_all.min()) if len(kap_all) else 0.0

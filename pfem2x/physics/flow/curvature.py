@@ -6,7 +6,7 @@ estimates per segment: a least-squares circle through the end points around it
 (:func:`segment_curvature`) and a least-squares fit of the exact signed distance of a circle
 to the signed-distance samples around it (:func:`distance_curvature`, nodes or particles:
 exact for a circle); :func:`smooth_along` averages along the interface,
-:func:`closest_segment` extends to the nodes. :func:`region_distance`: the signed distance to
+:func:`closest_mean` extends to the nodes. :func:`region_distance`: the signed distance to
 a region's boundary sampled below the mesh size (the initial samples).
 """
 
@@ -22,6 +22,8 @@ from pfem2x.physics.flow.interface import InterfaceGeometry, segment_distance
 __all__ = [
     "circle_distance",
     "circle_misfit",
+    "closest_mean",
+    "closest_pairs",
     "closest_segment",
     "distance_curvature",
     "oriented_segments",
@@ -450,7 +452,10 @@ def region_distance(
     x3 = np.zeros((len(points), 3))
     x3[:, :2] = points
     sign = np.where(np.asarray(region(x3, 0.0), dtype=bool), 1.0, -1.0)
-    return sign * np.minimum(segment_distance(points, allfine, cap=itf.clip), itf.clip)
+    # at least 1e-12 of the clip: a point on the boundary takes the region's side, not the
+    # sign of a round-off distance (the polygon's points differ by round-off between partitions)
+    d = segment_distance(points, allfine, cap=itf.clip)
+    return sign * np.clip(d, 1e-12 * itf.clip, itf.clip)
 
 
 def closest_segment(points: np.ndarray, segs: np.ndarray, chunk: int = 2_000_000) -> np.ndarray:
@@ -467,3 +472,42 @@ def closest_segment(points: np.ndarray, segs: np.ndarray, chunk: int = 2_000_000
         d = ap - s[:, :, None] * ab[None, :, :]
         out[k : k + step] = np.argmin(np.einsum("nmj,nmj->nm", d, d), axis=1)
     return out
+
+
+def closest_pairs(
+    points: np.ndarray, segs: np.ndarray, tol: float, chunk: int = 2_000_000
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs ``(point, segment)`` whose distance is within ``tol`` of the point's closest one.
+
+    A point equidistant from two segments (their shared end point is its closest point,
+    or a symmetry) is paired with both, not with the one a round-off difference picks
+    (which differs between partitions).
+    """
+    n, m = len(points), len(segs)
+    a = segs[:, 0]
+    ab = segs[:, 1] - a
+    ab2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
+    pi, si = [], []
+    step = max(1, chunk // max(m, 1))
+    for k in range(0, n, step):
+        ap = points[k : k + step, None, :] - a[None, :, :]
+        t = np.clip(np.einsum("nmj,mj->nm", ap, ab) / ab2, 0.0, 1.0)
+        d = ap - t[:, :, None] * ab[None, :, :]
+        dist = np.sqrt(np.einsum("nmj,nmj->nm", d, d))
+        p, q = np.nonzero(dist <= dist.min(axis=1)[:, None] + tol)
+        pi.append(p + k)
+        si.append(q)
+    return np.concatenate(pi or [np.zeros(0, np.int64)]), np.concatenate(
+        si or [np.zeros(0, np.int64)]
+    )
+
+
+def closest_mean(
+    points: np.ndarray, segs: np.ndarray, values: np.ndarray, tol: float
+) -> np.ndarray:
+    """Mean of the per-segment ``values`` over each point's :func:`closest_pairs`."""
+    pi, si = closest_pairs(points, segs, tol)
+    n = len(points)
+    return np.bincount(pi, weights=values[si], minlength=n) / np.maximum(
+        np.bincount(pi, minlength=n), 1
+    )
