@@ -233,9 +233,9 @@ class CapillaryForce:
         particles' ``dist``); default: the owned nodes of the cut cells and their values.
         Samples farther than ``1.5 h`` from the interface are not used.
     stretch_tolerance
-        The distance fit is used where its :math:`|\\lambda - 1|` is at most this (samples
+        The distance fit is used where its :math:`|\lambda - 1|` is at most this (samples
         that are still a signed distance; PFEM-2's ``dist`` is carried, never re-distanced,
-        and a flow stretches it: the rising bubble's :math:`\\lambda` reached 6 by t = 2 at
+        and a flow stretches it: the rising bubble's :math:`\lambda` reached 6 by t = 2 at
         h = 1/40), and where its circle passes within ``h/2`` of the iso-line's end points
         around the segment; elsewhere the end-point fit (:func:`.segment_curvature`).
     """

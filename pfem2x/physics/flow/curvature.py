@@ -290,7 +290,7 @@ def distance_curvature(
     kappa, ok, coef
         ``(m,)`` curvatures and whether the fit had at least six samples and converged
         to finite values (where not, ``kappa`` is 0); ``(m, 4)`` the fits'
-        :math:`(\\lambda, A, B, D)` (in the frame of each segment's midpoint and normal).
+        :math:`(\lambda, A, B, D)` (in the frame of each segment's midpoint and normal).
     """
     m = len(segs)
     kappa, ok = np.zeros(m), np.zeros(m, dtype=bool)
@@ -412,10 +412,11 @@ def region_distance(
     The boundary is sampled on the cut edges of the mesh (bisection), each cut cell's chord
     is divided in ``subdivisions`` and its inner points moved along the chord's normal onto
     the boundary (bisection): the distance is that to a polygon whose chords lie within
-    :math:`h^2\\kappa/(8\\,\\mathrm{subdivisions}^2)` of the curve (2.8e-7 for a circle
-    R = 0.25 at h = 1/40), not to the mesh's chords (2e-4): the initial signed distance the
-    curvature fit (:func:`distance_curvature`) takes its samples from. Capped at the
-    interface's clip distance.
+    :math:`L^2\\kappa/(8\\,\\mathrm{subdivisions}^2)` of the curve (:math:`L` the chord's
+    length; measured 1.3e-7 within 3 h of a circle R = 0.25 at h = 1/40), not to the mesh's
+    chords (5.4e-4): the initial signed distance the curvature fit
+    (:func:`distance_curvature`) takes its samples from. Capped at the interface's clip
+    distance, at least 1e-12 of it.
     """
     itf = interface
     x3 = np.zeros((len(itf.coords), 3))
