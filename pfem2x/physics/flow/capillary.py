@@ -282,7 +282,7 @@ class CapillaryForce:
         self.curvature_range = (0.0, 0.0)
         #: segments whose curvature fell back to the end-point fit (no distance fit)
         self.fallback_segments = 0
-        #: the last fit: all segments, their normals, circles (A, B, D) and success
+        #: the last fit: all segments, their normals, (lambda, A, B, D) and its use
         self._circles: tuple[np.ndarray, ...] = (np.zeros((0, 2, 2)),) * 4
         self._kept = np.zeros(len(self._xy), dtype=bool)  # the nodes of the cut cells
 
@@ -291,7 +291,8 @@ class CapillaryForce:
 
         After :meth:`update` (its fit, its cut cells): each node within ``band`` that is
         not a node of a cut cell gets the signed distance to the circle fitted to its
-        closest segment (:func:`.curvature.circle_distance`; its sign kept) instead of
+        closest segment (:func:`.curvature.circle_distance`; its sign kept; equidistant
+        segments: the mean; segments whose fit is not used: unchanged) instead of
         the distance to the P1 iso-line's chords (off by up to :math:`h^2\\kappa/8`):
         a circle stays a circle, and a cell the interface enters next has good samples.
         """
