@@ -26,13 +26,27 @@ Where :math:`H_h` and :math:`H_w` are one constant (away from the interface)
 \kappa H_h)` is a discrete gradient: a pressure jump :math:`\sigma\kappa`
 balances it to round-off (a circle with a uniform curvature stays at rest).
 
-Curvature of a segment: a weighted least-squares circle through the end
-points of the segments within ``fit_radius`` cells of its midpoint (each end
-point moved to the root of a quadratic along its cut edge,
-:func:`refined_segments`: the P1 iso-line's chords scatter the fit 60 x more), in the
-frame :math:`(s, \eta)` of the cell's gradient (tangent, normal): :math:`\eta =
-A(s^2 + \eta^2) + Bs + D`, :math:`\kappa = 2A/\sqrt{1 + B^2 - 4AD}` (exact
-for a circle, well conditioned for a straight line); then averaged along the
+Curvature of a segment (:mod:`pfem2x.physics.flow.curvature`): a weighted
+least-squares fit of the exact signed distance of a circle (times a stretch
+:math:`\lambda`) to the signed-distance samples within ``fit_radius`` cells of
+its midpoint (:func:`distance_curvature`; the level set: the nodes of the cut
+cells, which the re-distancing keeps; PFEM-2: the particles' ``dist``), in the
+frame :math:`(s, \eta)` of the cell's gradient (tangent, normal): the circle
+:math:`\eta = A(s^2 + \eta^2) + Bs + D`, :math:`\kappa = 2A/\sqrt{1 + B^2 - 4AD}`
+(exact for a circle whatever the samples' positions, well conditioned for a
+straight line). The samples start as the distance to the region's boundary
+sampled below the mesh size (:func:`region_distance`), and the level set's
+re-distancing gives the nodes near the interface (not of cut cells) their
+distance to the fitted circles (:meth:`CapillaryForce.redistance`): a circle
+stays a circle, and the static drop stays at rest to round-off (docs/RESULTS.md).
+Where the fit is not trusted (its circle farther than ``h/2`` from the
+iso-line's end points around the segment; PFEM-2's carried ``dist`` stretched
+by more than 5 %; fewer than six samples) the curvature is the end-point fit:
+a weighted least-squares circle of the same form through the end points of
+the segments within ``fit_radius`` cells (each moved to the root of a
+quadratic along its cut edge, :func:`refined_segments`; :func:`segment_curvature`;
+its noise, 2e-4 of :math:`1/R` on a circle at h = 1/40, drove spurious currents
+:math:`\mu|u|/\sigma` of 1e-5 to 1e-4). Then the curvatures are averaged along the
 interface over the same radius (:func:`smooth_along`: the saw-tooth
 capillary waves of the P1 iso-line at h = 1/80 lowered the rising bubble's
 circularity by 3 % without).
@@ -64,6 +78,18 @@ import ufl
 
 from pfem2x import compat
 from pfem2x.compat import MPI
+from pfem2x.physics.flow.curvature import (
+    circle_distance,
+    circle_misfit,
+    closest_mean,
+    closest_pairs,
+    distance_curvature,
+    oriented_segments,
+    refined_segments,
+    region_distance,
+    segment_curvature,
+    smooth_along,
+)
 from pfem2x.physics.flow.interface import InterfaceGeometry, positive_fraction
 
 __all__ = [
@@ -71,219 +97,13 @@ __all__ = [
     "bubble_geometry",
     "capillary_increment",
     "capillary_dt_limit",
+    "distance_curvature",
     "oriented_segments",
+    "region_distance",
     "refined_segments",
     "segment_curvature",
     "smooth_along",
 ]
-
-
-def oriented_segments(
-    vals: np.ndarray, xy: np.ndarray, normals: bool = False
-) -> tuple[np.ndarray, ...]:
-    """Zero iso-line segments of a P1 field, oriented with phase 1 (values ``>= 0``) on the left.
-
-    Parameters
-    ----------
-    vals
-        ``(n, 3)`` vertex values.
-    xy
-        ``(n, 3, 2)`` vertex coordinates.
-
-    Returns
-    -------
-    segs, cells
-        ``(m, 2, 2)`` end points (the unit normal ``(-t_y, t_x)`` of the tangent
-        ``t = p1 - p0`` points into phase 1) and the ``(m,)`` indices of the cut
-        cells (cells that touch the iso-line at a vertex only have no segment);
-        with ``normals`` also the ``(m, 2)`` unit gradients of the field on the cells.
-    """
-    pos = vals >= 0
-    cut = np.flatnonzero(pos.any(axis=1) & ~pos.all(axis=1))
-    v, x = vals[cut], xy[cut]
-    m = len(cut)
-    if m == 0:
-        return (np.zeros((0, 2, 2)), cut) + ((np.zeros((0, 2)),) if normals else ())
-    crosses = np.empty((m, 3), dtype=bool)
-    pts = np.empty((m, 3, 2))
-    p = pos[cut]
-    for e, (i, j) in enumerate(((0, 1), (1, 2), (2, 0))):
-        crosses[:, e] = p[:, i] != p[:, j]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = np.where(crosses[:, e], v[:, i] / (v[:, i] - v[:, j]), 0.0)
-        pts[:, e] = x[:, i] + s[:, None] * (x[:, j] - x[:, i])
-    idx = np.argsort(~crosses, axis=1, kind="stable")[:, :2]
-    segs = np.take_along_axis(pts, idx[:, :, None], axis=1)
-    # the gradient of the P1 field on each cell: J^T grad = (v1 - v0, v2 - v0)
-    J = np.stack([x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]], axis=1)  # rows: edge vectors
-    dv = np.stack([v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]], axis=1)
-    grad = np.linalg.solve(J, dv[:, :, None])[:, :, 0]
-    t = segs[:, 1] - segs[:, 0]
-    left = -t[:, 1] * grad[:, 0] + t[:, 0] * grad[:, 1]
-    flip = left < 0.0
-    segs[flip] = segs[flip][:, ::-1]
-    # a cell touching the iso-line at one vertex only: no segment
-    size = np.linalg.norm(J, axis=2).max(axis=1)
-    keep = np.linalg.norm(t, axis=1) > 1e-12 * size
-    if not normals:
-        return segs[keep], cut[keep]
-    gn = grad / np.maximum(np.linalg.norm(grad, axis=1), 1e-300)[:, None]
-    return segs[keep], cut[keep], gn[keep]
-
-
-def refined_segments(
-    vals: np.ndarray, xy: np.ndarray, grads: np.ndarray, segs: np.ndarray, cells: np.ndarray
-) -> np.ndarray:
-    r"""The end points of :func:`oriented_segments` moved to the root of a quadratic per edge.
-
-    Along a cut edge :math:`x_i + s\,e`, :math:`s \in [0, 1]`, the field is taken as
-    :math:`f(s) = v_i + (v_j - v_i)s + \tfrac12 q\,s(s - 1)` with the second derivative
-    :math:`q = (g_j - g_i)\cdot e` from the recovered nodal gradients :math:`g` (three
-    Newton steps from the linear root). The zero iso-line of a P1 field cuts a curved
-    interface's chords, whose offset (:math:`h^2\kappa/8`) varies from edge to edge: the
-    noise of the fitted curvature (circle R = 0.25 at h = 1/40, fit and average over 3
-    cells: max error 1.3e-2 with the linear end points, 1.6e-4 with these).
-
-    Parameters
-    ----------
-    vals, xy
-        ``(n, 3)`` vertex values and ``(n, 3, 2)`` coordinates, as :func:`oriented_segments`.
-    grads
-        ``(n, 3, 2)`` recovered gradients at the vertices.
-    segs, cells
-        The segments and cells :func:`oriented_segments` returned for ``vals``.
-
-    Returns
-    -------
-    ``(m, 2, 2)`` segments, each end point on the same edge as in ``segs``, same orientation.
-    """
-    m = len(cells)
-    if m == 0:
-        return segs.copy()
-    v, x, g = vals[cells], xy[cells], grads[cells]
-    pos = v >= 0
-    crosses = np.empty((m, 3), dtype=bool)
-    pts = np.empty((m, 3, 2))
-    lin = np.empty((m, 3, 2))
-    for e, (i, j) in enumerate(((0, 1), (1, 2), (2, 0))):
-        crosses[:, e] = pos[:, i] != pos[:, j]
-        ed = x[:, j] - x[:, i]
-        q = np.einsum("mk,mk->m", g[:, j] - g[:, i], ed)
-        dv = v[:, j] - v[:, i]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = np.where(crosses[:, e], v[:, i] / (v[:, i] - v[:, j]), 0.0)
-            s0 = s
-            for _ in range(3):
-                f = v[:, i] + dv * s + 0.5 * q * s * (s - 1.0)
-                fp = dv + 0.5 * q * (2.0 * s - 1.0)
-                s = np.clip(s - f / fp, 0.0, 1.0)
-            # a flat or non-monotone quadratic: keep the linear root
-            s = np.where(crosses[:, e] & np.isfinite(s), s, s0)
-        pts[:, e] = x[:, i] + s[:, None] * ed
-        lin[:, e] = x[:, i] + s0[:, None] * ed
-    # each end point of segs is the linear root of one crossing edge: the nearest one
-    out = np.empty_like(segs)
-    for k in range(2):
-        d = np.einsum("mek,mek->me", lin - segs[:, k, None, :], lin - segs[:, k, None, :])
-        d[~crosses] = np.inf
-        out[:, k] = np.take_along_axis(pts, np.argmin(d, axis=1)[:, None, None], axis=1)[:, 0]
-    return out
-
-
-def segment_curvature(
-    segs: np.ndarray, radius: float, normals: np.ndarray | None = None
-) -> np.ndarray:
-    """Curvature of each oriented segment from a least-squares circle of its neighbours.
-
-    Parameters
-    ----------
-    segs
-        ``(m, 2, 2)`` segments oriented as :func:`oriented_segments` returns them.
-    radius
-        The end points within this distance of a segment's midpoint enter its fit
-        (weight :math:`(1 - d^2/r^2)^2` times half the length of the point's segment).
-    normals
-        ``(m, 2)`` unit normals into phase 1 of the fit frames (default: the
-        segments' own; the field's cell gradients are more robust: a segment
-        that cuts a cell near a vertex is short and its direction arbitrary).
-
-    Returns
-    -------
-    ``(m,)`` curvatures, positive where phase 1 (left of the segments) is convex;
-    0 where fewer than three points lie within ``radius``.
-    """
-    m = len(segs)
-    if m == 0:
-        return np.zeros(0)
-    mid = segs.mean(axis=1)
-    if normals is None:
-        t = segs[:, 1] - segs[:, 0]
-        t /= np.maximum(np.linalg.norm(t, axis=1), 1e-300)[:, None]
-        n = np.stack([-t[:, 1], t[:, 0]], axis=1)
-    else:
-        n = normals
-        t = np.stack([n[:, 1], -n[:, 0]], axis=1)
-    pts = segs.reshape(-1, 2)
-    # each end point weighs half its segment's length (a quadrature of the curve: the
-    # short segments of a curve passing near a vertex add no spurious weight there)
-    plen = np.repeat(0.5 * np.linalg.norm(segs[:, 1] - segs[:, 0], axis=1), 2)
-    kappa = np.zeros(m)
-    chunk = max(1, 4_000_000 // max(len(pts), 1))
-    for k in range(0, m, chunk):  # chunks of segments (memory), all points at once
-        sl = slice(k, k + chunk)
-        d = pts[None, :, :] - mid[sl, None, :]  # (c, p, 2)
-        r2 = np.einsum("cpj,cpj->cp", d, d) / radius**2
-        w = np.where(r2 < 1.0, (1.0 - r2) ** 2, 0.0) * plen[None, :]
-        s = np.einsum("cpj,cj->cp", d, t[sl])
-        eta = np.einsum("cpj,cj->cp", d, n[sl])
-        basis = np.stack([s * s + eta * eta, s, np.ones_like(s)], axis=2)  # (c, p, 3)
-        M = np.einsum("cp,cpi,cpj->cij", w, basis, basis)
-        rhs = np.einsum("cp,cpi,cp->ci", w, basis, eta)
-        enough = np.count_nonzero(w > 0.0, axis=1) >= 3
-        scale = np.einsum("cii->c", M)[:, None, None] * 1e-13 + 1e-300
-        M = M + scale * np.eye(3)[None]
-        coef = np.linalg.solve(M, rhs[:, :, None])[:, :, 0]
-        A, B, D = coef[:, 0], coef[:, 1], coef[:, 2]
-        den = np.sqrt(np.maximum(1.0 + B * B - 4.0 * A * D, 1e-300))
-        kappa[sl] = np.where(enough, 2.0 * A / den, 0.0)
-    return kappa
-
-
-def smooth_along(segs: np.ndarray, values: np.ndarray, radius: float) -> np.ndarray:
-    """Kernel average of per-segment ``values`` over the segments within ``radius``.
-
-    Weights: :math:`(1 - d^2/r^2)^2` of the midpoint distance times the segment
-    length (a quadrature along the curve).
-    """
-    m = len(segs)
-    if m == 0:
-        return values.copy()
-    mid = segs.mean(axis=1)
-    length = np.linalg.norm(segs[:, 1] - segs[:, 0], axis=1)
-    out = np.empty(m)
-    chunk = max(1, 4_000_000 // m)
-    for k in range(0, m, chunk):
-        d = mid[k : k + chunk, None, :] - mid[None, :, :]
-        r2 = np.einsum("cpj,cpj->cp", d, d) / radius**2
-        w = np.where(r2 < 1.0, (1.0 - r2) ** 2, 0.0) * length[None, :]
-        out[k : k + chunk] = (w @ values) / np.maximum(w.sum(axis=1), 1e-300)
-    return out
-
-
-def closest_segment(points: np.ndarray, segs: np.ndarray, chunk: int = 2_000_000) -> np.ndarray:
-    """Index of the segment ``(m, 2, 2)`` closest to each point ``(n, 2)``."""
-    n, m = len(points), len(segs)
-    a = segs[:, 0]
-    ab = segs[:, 1] - a
-    ab2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
-    out = np.zeros(n, dtype=np.int64)
-    step = max(1, chunk // max(m, 1))
-    for k in range(0, n, step):
-        ap = points[k : k + step, None, :] - a[None, :, :]
-        s = np.clip(np.einsum("nmj,mj->nm", ap, ab) / ab2, 0.0, 1.0)
-        d = ap - s[:, :, None] * ab[None, :, :]
-        out[k : k + step] = np.argmin(np.einsum("nmj,nmj->nm", d, d), axis=1)
-    return out
 
 
 def capillary_dt_limit(rho1: float, rho2: float, h: float, sigma: float) -> float:
@@ -407,6 +227,17 @@ class CapillaryForce:
         Mesh size (shortest edge): the curvature fit radius is ``fit_radius * h``.
     fit_radius
         Radius of the curvature fit in cells.
+    samples
+        The signed-distance samples of the curvature fit (:func:`distance_curvature`):
+        ``samples()`` returns this rank's ``(points (p, 2), values (p,))`` (the PFEM-2
+        particles' ``dist``); default: the owned nodes of the cut cells and their values.
+        Samples farther than ``1.5 h`` from the interface are not used.
+    stretch_tolerance
+        The distance fit is used where its :math:`|\lambda - 1|` is at most this (samples
+        that are still a signed distance; PFEM-2's ``dist`` is carried, never re-distanced,
+        and a flow stretches it: the rising bubble's :math:`\lambda` reached 6 by t = 2 at
+        h = 1/40), and where its circle passes within ``h/2`` of the iso-line's end points
+        around the segment; elsewhere the end-point fit (:func:`.segment_curvature`).
     """
 
     def __init__(
@@ -417,8 +248,19 @@ class CapillaryForce:
         band: float,
         h: float,
         fit_radius: float = 3.0,
+        samples: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None,
+        stretch_tolerance: float = np.inf,
     ):
         self.interface = interface
+        self.samples = samples
+        self._sample_band = 1.5 * float(h)
+        #: the distance fit is used where its circle passes within this distance of the
+        #: iso-line's end points around the segment (:func:`.curvature.circle_misfit`)
+        self.misfit_tolerance = 0.5 * float(h)
+        self.misfit = np.zeros(0)  # of the last update, per segment
+        #: ... and where the samples' gradient is within this of 1 (the fit's lambda)
+        self.stretch_tolerance = float(stretch_tolerance)
+        self._n_nodes = Q.dofmap.index_map.size_local
         self.sigma = float(sigma)
         self.band = float(band)
         self.radius = float(fit_radius) * float(h)
@@ -438,6 +280,35 @@ class CapillaryForce:
         self._sigma_c = compat.dolfinx.fem.Constant(mesh, compat.PETSc.ScalarType(self.sigma))
         #: smallest and largest segment curvature of the last update
         self.curvature_range = (0.0, 0.0)
+        #: segments whose curvature fell back to the end-point fit (no distance fit)
+        self.fallback_segments = 0
+        #: the last fit: all segments, their normals, (lambda, A, B, D) and its use
+        self._circles: tuple[np.ndarray, ...] = (np.zeros((0, 2, 2)),) * 4
+        self._kept = np.zeros(len(self._xy), dtype=bool)  # the nodes of the cut cells
+
+    def redistance(self, phi: np.ndarray, band: float) -> None:
+        """Nodal values ``phi`` within ``band`` of the interface: the fitted circles' distance.
+
+        After :meth:`update` (its fit, its cut cells): each node within ``band`` that is
+        not a node of a cut cell gets the signed distance to the circle fitted to its
+        closest segment (:func:`.curvature.circle_distance`; its sign kept; equidistant
+        segments: the mean; segments whose fit is not used: unchanged) instead of
+        the distance to the P1 iso-line's chords (off by up to :math:`h^2\\kappa/8`):
+        a circle stays a circle, and a cell the interface enters next has good samples.
+        """
+        allsegs, normals, coef, ok = self._circles
+        if not len(allsegs):
+            return
+        idx = np.flatnonzero(~self._kept & (np.abs(phi) < band))
+        pi, si = closest_pairs(self._xy[idx], allsegs, 1e-9 * self.radius)
+        good = ok[si]  # (tied segments: the mean of their circles' distances)
+        pi, si = pi[good], si[good]
+        d = np.abs(circle_distance(self._xy[idx[pi]], allsegs[si], normals[si], coef[si]))
+        cnt = np.bincount(pi, minlength=len(idx))
+        has = cnt > 0
+        dm = np.bincount(pi, weights=d, minlength=len(idx))[has] / cnt[has]
+        idx = idx[has]
+        phi[idx] = np.where(phi[idx] >= 0.0, 1.0, -1.0) * dm
 
     def force(self, H_w: Any) -> Any:
         """The UFL force :math:`f_h` with the frame's phase weight ``H_w``."""
@@ -471,36 +342,79 @@ class CapillaryForce:
         G = acc[:, :2] / np.maximum(acc[:, 2:], 1e-300)
         return G[itf.dofmap[:no]]
 
-    def update(self, phi: np.ndarray, cell_vol: np.ndarray) -> None:
-        """Recompute :math:`\\kappa_h`, the potential and the tensor from nodal values ``phi``.
+    def _marked_nodes(self, cells: np.ndarray) -> np.ndarray:
+        """The nodes (owned and ghost) of the local ``cells`` (a mask) on any rank (collective)."""
+        mark = self._mark.x.array
+        mark[:] = 0.0
+        mark[self.interface.dofmap[cells]] = 1.0
+        compat.scatter_reverse_add(self._mark.x)
+        compat.scatter_forward(self._mark.x)
+        return mark > 0.0
 
-        ``phi`` holds owned and ghost values; ``cell_vol`` the owned cells' areas.
-        Collective: the segments are gathered and band marks summed over ranks.
+    def _gathered_samples(self, phi: np.ndarray, nodes: np.ndarray) -> tuple[np.ndarray, ...]:
+        """All ranks' signed-distance samples near the interface (collective).
+
+        ``nodes``: the nodes of the cut cells, the default samples.
+        """
+        if self.samples is not None:
+            pts, vals = self.samples()
+        else:
+            own = np.flatnonzero(nodes[: self._n_nodes])
+            pts, vals = self._xy[own], phi[own]
+        near = np.abs(vals) < self._sample_band
+        local = np.concatenate([pts[near], vals[near, None]], axis=1)
+        parts = self.interface.comm.allgather(local)
+        both = np.concatenate([p for p in parts if len(p)] or [np.zeros((0, 3))])
+        return both[:, :2], both[:, 2]
+
+    def _segment_curvature(
+        self, phi: np.ndarray, cell_vol: np.ndarray, marked: np.ndarray
+    ) -> tuple[np.ndarray, ...]:
+        """All ranks' refined segments, cell normals and curvatures (collective).
+
+        The curvature of the distance fit (:func:`distance_curvature`), the end-point fit
+        (:func:`segment_curvature`) where it fails, averaged along the interface.
         """
         itf = self.interface
-        no = itf.n_owned
-        vals = phi[itf.dofmap[:no]]
+        vals = phi[itf.dofmap[: itf.n_owned]]
         segs, cells, nrm = oriented_segments(vals, itf.cell_xy, normals=True)
         fit = refined_segments(vals, itf.cell_xy, self._nodal_gradient(vals, cell_vol), segs, cells)
         parts = itf.comm.allgather(np.concatenate([fit, nrm[:, None, :]], axis=1))
         both = np.concatenate([p for p in parts if len(p)] or [np.zeros((0, 3, 2))])
-        allsegs = both[:, :2]
-        kap_all = smooth_along(
-            allsegs, segment_curvature(allsegs, self.radius, both[:, 2]), self.radius
-        )
-        # the band: nodes of cells with a sign change and nodes within `band`
+        allsegs, normals = both[:, :2], both[:, 2]
+        pts, dvals = self._gathered_samples(phi, marked)
+        kap, ok, coef = distance_curvature(allsegs, normals, pts, dvals, self.radius)
+        # the fitted circle must pass through the iso-line's end points around the segment
+        self.misfit = circle_misfit(allsegs, normals, coef, allsegs.reshape(-1, 2), self.radius)
+        ok &= self.misfit <= self.misfit_tolerance
+        # and the samples must be a signed distance (PFEM-2's dist is carried, not re-distanced)
+        ok &= np.abs(coef[:, 0] - 1.0) <= self.stretch_tolerance
+        self._circles = (allsegs, normals, coef, ok)
+        self.fallback_segments = int(np.count_nonzero(~ok))
+        if not ok.all():
+            kap[~ok] = segment_curvature(allsegs[~ok], self.radius, normals[~ok])
+        return segs, cells, allsegs, smooth_along(allsegs, kap, self.radius)
+
+    def update(self, phi: np.ndarray, cell_vol: np.ndarray) -> None:
+        """Recompute :math:`\\kappa_h`, the potential and the tensor from nodal values ``phi``.
+
+        ``phi`` holds owned and ghost values; ``cell_vol`` the owned cells' areas.
+        Collective: the segments and samples are gathered and band marks summed over ranks.
+        """
+        itf = self.interface
+        # the default samples: the nodes of the cells the re-distancing keeps (a sign change)
+        allv = phi[itf.dofmap]
+        kept = self._marked_nodes((allv.min(axis=1) < 0.0) & (allv.max(axis=1) > 0.0))
+        self._kept = kept
+        segs, cells, allsegs, kap_all = self._segment_curvature(phi, cell_vol, kept)
+        # the band: nodes of cells with a sign change (phi >= 0 or not) and nodes within `band`
         hpos = phi >= 0.0
         hc = hpos[itf.dofmap]
-        mixed = hc.any(axis=1) & ~hc.all(axis=1)
-        mark = self._mark.x.array
-        mark[:] = 0.0
-        mark[itf.dofmap[mixed]] = 1.0
-        compat.scatter_reverse_add(self._mark.x)
-        compat.scatter_forward(self._mark.x)
-        near = (mark > 0.0) | (np.abs(phi) < self.band)
+        mark = self._marked_nodes(hc.any(axis=1) & ~hc.all(axis=1))
+        near = mark | (np.abs(phi) < self.band)
         kap = np.zeros(len(phi))
         if len(allsegs) and near.any():
-            kap[near] = kap_all[closest_segment(self._xy[near], allsegs)]
+            kap[near] = closest_mean(self._xy[near], allsegs, kap_all, 1e-9 * self.radius)
         self.kappa.x.array[:] = kap
         self.Pi.x.array[:] = self.sigma * kap * hpos
         lo = float(kap_all.min()) if len(kap_all) else 0.0

@@ -9,7 +9,11 @@ One step:
 1. level set :math:`\phi` (> 0 in the phase that has a ``region``): Crank–Nicolson
    + SUPG with the velocity :math:`u^n`, then geometric re-distancing every
    ``flow.reinit_every`` steps (signed distance to the P1 zero iso-line, which
-   is kept; values clipped at :math:`\pm 8\varepsilon`);
+   is kept; values clipped at :math:`\pm 8\varepsilon`; with surface tension
+   the nodes within :math:`\varepsilon + H` get the distance to the circles the
+   curvature fit found, :meth:`.capillary.CapillaryForce.redistance`, and
+   :math:`\phi` starts as the distance to the region's boundary sampled below
+   H, :func:`.curvature.region_distance`);
 2. :math:`\rho, \mu` from :math:`\phi^{n+1}` with a smoothed Heaviside of
    half-width :math:`\varepsilon` = ``flow.interface_width`` · H (H: shortest edge);
 3. velocity predictor (incremental pressure-correction, Guermond–Quartapelle):
@@ -62,7 +66,7 @@ from pfem2x import compat, fem
 from pfem2x.compat import PETSc
 from pfem2x.mesh import Domain
 from pfem2x.physics.flow.balanced import JumpForce
-from pfem2x.physics.flow.capillary import CapillaryForce, capillary_increment
+from pfem2x.physics.flow.capillary import CapillaryForce, capillary_increment, region_distance
 from pfem2x.physics.flow.interface import InterfaceGeometry
 from pfem2x.physics.flow.problem import FlowSolver
 from pfem2x.physics.flow.projection import PressureProjection
@@ -86,6 +90,8 @@ class EulerianFlow(FlowSolver):
             self._keep = compat.dolfinx.fem.Function(self.Q)  # re-distancing: frozen nodes
             region = pr.phases[0][3]
             self.phi.x.array[:] = self.interface.signed_distance(region)
+            if pr.surface_tension > 0.0:  # the curvature fit's samples: distances below h
+                self.phi.x.array[:] = region_distance(self.interface, region)
             self._update_phase()
         self.dt_c = compat.dolfinx.fem.Constant(mesh, sc(1.0))
         self._eps_c = compat.dolfinx.fem.Constant(mesh, sc(self.eps))
@@ -272,16 +278,19 @@ class EulerianFlow(FlowSolver):
             )
             self.phi.x.scatter_forward()
         pe = self.problem.reinit_every
-        if pe and (self.steps_done + 1) % pe == 0:
+        reinit = bool(pe and (self.steps_done + 1) % pe == 0)
+        if reinit:
             with self.timer("reinit"):
                 self.redistance()
                 if self.problem.volume_correction:
                     self._correct_volume()
+        if self.capillary is not None:
+            self.capillary.update(self.phi.x.array, self.cell_vol)
+            if reinit:  # near the interface: the distance to the fitted circles
+                self.capillary.redistance(self.phi.x.array, self.eps + self.H)
         self._update_phase()
         if self.jump is not None:
             self.jump.update(self.phi.x.array)
-        if self.capillary is not None:
-            self.capillary.update(self.phi.x.array, self.cell_vol)
 
     def _predict(self, t: float, dt: float) -> None:
         with self.timer("assembly"):

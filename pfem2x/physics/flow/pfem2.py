@@ -161,8 +161,8 @@ from pfem2x import particles as P
 from pfem2x.compat import MPI, PETSc
 from pfem2x.mesh import Domain
 from pfem2x.physics.flow.balanced import JumpForce
-from pfem2x.physics.flow.capillary import CapillaryForce, capillary_increment
 from pfem2x.physics.flow.interface import positive_fraction
+from pfem2x.physics.flow.pfem2_capillary import ParticleCapillary
 from pfem2x.physics.flow.problem import FlowSolver
 from pfem2x.physics.flow.projection import PressureProjection
 from pfem2x.physics.flow.transfers import ParticleTransfers
@@ -171,7 +171,7 @@ from pfem2x.scene import Scene
 __all__ = ["LagrangianFlow"]
 
 
-class LagrangianFlow(ParticleTransfers, FlowSolver):
+class LagrangianFlow(ParticleCapillary, ParticleTransfers, FlowSolver):
     """PFEM-2 fractional-step NS with particle velocity and sharp particle phase.
 
     See the module docstring for the step. Diagnostics are those of
@@ -287,6 +287,7 @@ class LagrangianFlow(ParticleTransfers, FlowSolver):
                 # the signed distance to the region's boundary (> 0 inside), P1 at the start
                 self.dist.x.array[:] = self.interface.signed_distance(region)
                 P.interpolate(self.cloud_, "dist", self.dist)
+                self._seed_capillary_dist(region)
         self.last_population = P.PopulationStats()
         self.step_count = 0
 
@@ -524,21 +525,6 @@ class LagrangianFlow(ParticleTransfers, FlowSolver):
             proj.correct(self.u, self.p, dt, mass_ready=True)
             self._update_force()
 
-    def _capillary_increment(self, dt: float) -> None:
-        """``flow.capillary_increment`` (:func:`.capillary.capillary_increment`; lumped mass)."""
-        proj = self.projection
-
-        def mass(x: Any, y: Any) -> None:
-            y.pointwiseMult(x, proj.b_mass)
-            y.scale(1.0 / dt)
-
-        def project() -> None:
-            proj.solve_increment()
-            proj.correct(self.u, self.p, dt, mass_ready=True)
-            self._update_force()
-
-        capillary_increment(self.u, self.u_star, self.m_solver, mass, project)
-
     def _viscous_operator(self, dt: float) -> None:
         """``M_rho/dt + K_mu`` and its right-hand side ``M_rho u_hat/dt`` (needs ``b_mass``)."""
         b_mass = self.projection.b_mass
@@ -589,28 +575,6 @@ class LagrangianFlow(ParticleTransfers, FlowSolver):
         proj.solve(self.L_pc, self.p)
         with self.timer("assembly"):
             self._update_force()
-
-    # -- surface tension ----------------------------------------------------------
-    def _init_capillary(self) -> None:
-        """``effects.surface_tension``: the capillary force on the zero iso-line of ``dist``."""
-        pr = self.problem
-        if not (pr.two_phase and pr.surface_tension > 0.0):
-            return
-        if self.dist is None:
-            self.dist = compat.dolfinx.fem.Function(self.Q, name="dist")
-        # band: every cell a fraction between 0 and 1 may sit in has its nodes in it
-        self.capillary = CapillaryForce(
-            self.Q, self.interface, pr.surface_tension, 2.0 * self.H, self.H
-        )
-
-    def _phase_weight(self) -> Any:
-        """The frame's phase-1 weight: the DG0 density's cell fractions (UFL)."""
-        (_, r1, _, _), (_, r2, _, _) = self.problem.phases
-        return (self.rho - r2) / (r1 - r2)
-
-    def interface_function(self) -> np.ndarray:
-        """The projected signed distance ``dist`` (surface tension, gravity), else ``phi``."""
-        return self.dist.x.array if self.dist is not None else self.phi.x.array
 
     def restore_checkpoint(self, *args: Any, **kwargs: Any) -> None:
         """As :meth:`Solver.restore_checkpoint`; then the pressure operator, mass and jump force."""
