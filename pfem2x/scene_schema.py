@@ -340,7 +340,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "extra_pass": Key(boolean, False, doc="PFEM-2: second pass with theta = 1/2"),
         "pass_splits": Key(
             integer(1, 64),
-            2,
+            4,
             doc="PFEM-2, extra_pass: the theta = 1/2 passes move in this many equal parts of "
             "the step, each along the velocity and with the source blended linearly in time "
             "(at the part's middle) from the start of the step to the first pass's end "

@@ -75,16 +75,18 @@ class TwoPasses:
             self._pass(dt, 0.0)
         else:
             self.u.x.array[:] = guess[0]
-            self._pass(dt, 0.5, (force_old, guess[1]))
+            self._pass(dt, 0.5, (force_old, guess[1], 1))  # (splits: measured no gain)
         # second pass from the start-of-step state, theta = 1/2 in eq. 2.10
         with self.timer("particles"):
             c.remove(np.ones(c.n, dtype=bool))
             names = c.field_names
             c.append(saved["__x"], saved["__c"], {k: saved[k] for k in names})
             self.p.x.array[:] = p_old
-            if not blends:
-                self.force.x.array[:] = 0.5 * (self.force.x.array + force_old)
-        self._pass(dt, 0.5, (force_old, self.force.x.array.copy()) if blends else None)
+        if blends:
+            self._pass(dt, 0.5, (force_old, self.force.x.array.copy(), self.pass_splits))
+        else:
+            self.force.x.array[:] = 0.5 * (self.force.x.array + force_old)
+            self._pass(dt, 0.5)
 
     def _end_estimate(self, dt: float) -> tuple[np.ndarray, np.ndarray] | None:
         """``flow.predictor = "extrapolated"``: ``u^n + dt du/dt`` and ``a^n + dt da/dt``.
@@ -99,15 +101,14 @@ class TwoPasses:
         u, a = self.u.x.array, self.force.x.array
         return u + r * (u - self._u_old.x.array), a + r * (a - self._a_old.x.array)
 
-    def _blended_move(self, dt: float, a0: np.ndarray, a1: np.ndarray) -> None:
-        r"""Step 1 of a blended pass: ``flow.pass_splits`` moves, velocity and source at mid-part.
+    def _blended_move(self, dt: float, a0: np.ndarray, a1: np.ndarray, m: int) -> None:
+        r"""Step 1 of a blended pass: ``m`` moves, each with the velocity and source of its middle.
 
         Part :math:`j` of :math:`m` moves over :math:`\Delta t/m` along the streamline of
         :math:`(1-\tau_j)\,u^n + \tau_j\,u^{(1)}` (``_u_old``, ``u``) with the source
         :math:`(1-\tau_j)\,a_0 + \tau_j\,a_1` integrated on the path,
         :math:`\tau_j = (j + 1/2)/m`. :math:`m = 1`: their means over the step.
         """
-        m = self.pass_splits
         if m == 1:
             self.force.x.array[:] = 0.5 * (a1 + a0)
             self._move(dt, 0.5)

@@ -568,7 +568,7 @@ class LagrangianFlow(TwoPasses, ParticleTransfers, FlowSolver):
             self.m_solver.set_operator(self.A_m)
 
     def _pass(self, dt: float, theta: float, blend: tuple | None = None) -> None:
-        """Steps 1–4 of one pass; ``blend = (a0, a1)``: the move of :meth:`_blended_move`."""
+        """Steps 1–4 of one pass; ``blend = (a0, a1, m)``: the move of :meth:`_blended_move`."""
         with self.timer("particles"):
             if blend is None:
                 self._move(dt, theta)
