@@ -17,13 +17,15 @@ for the whole step).
 
 ``flow.predictor`` sets the first pass. ``"euler"`` (the paper's step 6): a
 :math:`\theta = 0` pass along :math:`u^n` with the source :math:`a^n`.
-``"extrapolated"``: the same blended pass as the second, towards the estimate
-:math:`u^n + \Delta t\,(u^n - u^{n-1})/\Delta t_{n-1}` (and the same for
-:math:`a`) from the last step's change, so that the second pass starts from an
-end-of-step estimate of second order instead of first (the first step, without
-a last step, runs the :math:`\theta = 0` pass). Rayleigh–Taylor 100 × 400 at
-Courant 8, falling tip at :math:`\tau = 2`: 0.027 d from the Courant 0.5 run with
-``"euler"`` and :math:`m = 1`, 0.013 d with ``"extrapolated"`` and :math:`m = 2`
+``"extrapolated"``: a :math:`\theta = 1/2` pass like the second (its move in one
+part: more measured no gain) towards the estimate
+:math:`u^n + \Delta t\,(u^n - u^{n-1})/\Delta t_{n-1}` (and the same for :math:`a`)
+from the last step's change, so that the second pass starts from an end-of-step
+estimate of second order instead of first; the first step, without a last step,
+runs the :math:`\theta = 0` pass. Rayleigh–Taylor 100 × 400 at Courant 8, largest
+tip difference to the Courant 0.5 run up to :math:`\tau = 2.5`: 0.030 d with
+``"euler"`` and :math:`m = 1`, 0.013 d with ``"extrapolated"`` and :math:`m = 2`,
+0.0095 d with :math:`m = 4` (the defaults; 17 % more CPU time than the first)
 (docs/RESULTS.md, "Where PFEM-2's Δt error comes from").
 
 Both apply with the source integrated along the path and the full source
@@ -75,7 +77,7 @@ class TwoPasses:
             self._pass(dt, 0.0)
         else:
             self.u.x.array[:] = guess[0]
-            self._pass(dt, 0.5, (force_old, guess[1], 1))  # (splits: measured no gain)
+            self._pass(dt, 0.5, (force_old, guess[1], 1))
         # second pass from the start-of-step state, theta = 1/2 in eq. 2.10
         with self.timer("particles"):
             c.remove(np.ones(c.n, dtype=bool))
