@@ -23,9 +23,9 @@ part: more measured no gain) towards the estimate
 from the last step's change, so that the second pass starts from an end-of-step
 estimate of second order instead of first; the first step, without a last step,
 runs the :math:`\theta = 0` pass. Rayleigh–Taylor 100 × 400 at Courant 8, largest
-tip difference to the Courant 0.5 run up to :math:`\tau = 2.5`: 0.030 d with
+tip difference to the Courant 0.5 run up to :math:`\tau = 2.5`: 0.029 d with
 ``"euler"`` and :math:`m = 1`, 0.013 d with ``"extrapolated"`` and :math:`m = 2`,
-0.0095 d with :math:`m = 4` (the defaults; 17 % more CPU time than the first)
+0.0096 d with :math:`m = 4` (the defaults; 17 % more CPU time than the first)
 (docs/RESULTS.md, "Where PFEM-2's Δt error comes from").
 
 Both apply with the source integrated along the path and the full source
