@@ -341,10 +341,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "pass_splits": Key(
             integer(1, 64),
             4,
-            doc="PFEM-2, extra_pass: the theta = 1/2 passes move in this many equal parts of "
-            "the step, each along the velocity and with the source blended linearly in time "
-            "(at the part's middle) from the start of the step to the first pass's end "
-            "(1: their means over the whole step)",
+            doc="PFEM-2, extra_pass: the second (theta = 1/2) pass moves in this many equal "
+            "parts of the step, each along the velocity and with the source blended linearly "
+            "in time (at the part's middle) from the start of the step to the first pass's "
+            "end (1: their means over the whole step)",
         ),
         "predictor": Key(
             choice("extrapolated", "euler"),

@@ -129,7 +129,7 @@ key                                 effect in this frame
 ``flow.explicit_pressure``          step 1: ``consistent`` (solved from :math:`u^n`) or ``lagged``
 ``flow.correction``                 ``velocity`` or ``momentum`` (step 3)
 ``flow.extra_pass``                 step 6 of the paper (second pass, :math:`\theta = 1/2`)
-``flow.pass_splits``                the passes' moves in time-blended parts (:mod:`.passes`)
+``flow.pass_splits``                the second pass's move in time-blended parts (:mod:`.passes`)
 ``flow.predictor``                  the first pass: ``extrapolated`` or ``euler``
 ``flow.pic_fraction``               step 4 blend towards the mesh velocity (0: FLIP)
 ``flow.pic_fraction_light``         the same for the light phase (two phases)
