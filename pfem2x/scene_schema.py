@@ -338,6 +338,21 @@ SCHEMA: dict[str, dict[str, Key]] = {
         ),
         "max_speed": Key(expr_text, 0.0, doc="|u| above this is divergence (0: no check)"),
         "extra_pass": Key(boolean, False, doc="PFEM-2: second pass with theta = 1/2"),
+        "pass_splits": Key(
+            integer(1, 64),
+            4,
+            doc="PFEM-2, extra_pass: the second (theta = 1/2) pass moves in this many equal "
+            "parts of the step, each along the velocity and with the source blended linearly "
+            "in time (at the part's middle) from the start of the step to the first pass's "
+            "end (1: their means over the whole step)",
+        ),
+        "predictor": Key(
+            choice("extrapolated", "euler"),
+            "extrapolated",
+            doc="PFEM-2, extra_pass: the first pass; extrapolated = a theta = 1/2 pass towards "
+            "u^n + dt du/dt and a^n + dt da/dt of the last step (the first step: euler), "
+            "euler = along u^n with the source a^n (theta = 0, the paper)",
+        ),
         "pic_fraction": Key(
             number(0.0, 1.0),
             0.0,
@@ -529,6 +544,8 @@ FRAME_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
             "flow.affine",
             "flow.density",
             "flow.extra_pass",
+            "flow.pass_splits",
+            "flow.predictor",
             "flow.explicit_pressure",
         ),
     },

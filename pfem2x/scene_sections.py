@@ -204,6 +204,8 @@ class FlowSection(Section):
     volume_correction: bool
     max_speed: ExprText
     extra_pass: bool
+    pass_splits: int
+    predictor: str
     pic_fraction: float
     pic_fraction_light: float
     light_source: str

@@ -89,10 +89,10 @@ the particles get no explicit source.
 
 ``flow.extra_pass = true`` repeats steps 1–4 once from the start-of-step
 particles with :math:`\theta = 1/2` in eq. 2.10 — step 6 of the paper: the
-particles follow the streamline of :math:`\tfrac12(u^n + u^{n+1})` (the limit
-of X-IVAS sub-steps :math:`h \to 0`) with the source integrated inside that
-move, the mean of the start-of-step :math:`a^n` (consistent pressure) and the
-first pass's :math:`a` (pressure :math:`p^n + \delta p`).
+particles follow the velocity and source blended linearly in time from the start
+of the step to the first pass's end (``flow.pass_splits``), the first pass being
+:math:`\theta = 0` or extrapolated from the last step (``flow.predictor``):
+:mod:`pfem2x.physics.flow.passes`.
 
 Operators per step (``fem.COUNTERS``): 1 matrix assembly (pressure; +1 for
 the viscous matrix when the phases' viscosities differ), 4 vector
@@ -129,6 +129,8 @@ key                                 effect in this frame
 ``flow.explicit_pressure``          step 1: ``consistent`` (solved from :math:`u^n`) or ``lagged``
 ``flow.correction``                 ``velocity`` or ``momentum`` (step 3)
 ``flow.extra_pass``                 step 6 of the paper (second pass, :math:`\theta = 1/2`)
+``flow.pass_splits``                the second pass's move in time-blended parts (:mod:`.passes`)
+``flow.predictor``                  the first pass: ``extrapolated`` or ``euler``
 ``flow.pic_fraction``               step 4 blend towards the mesh velocity (0: FLIP)
 ``flow.pic_fraction_light``         the same for the light phase (two phases)
 ``flow.light_source``               ``full`` or ``gravity`` (see :meth:`LagrangianFlow._kick`)
@@ -162,6 +164,7 @@ from pfem2x.compat import MPI, PETSc
 from pfem2x.mesh import Domain
 from pfem2x.physics.flow.balanced import JumpForce
 from pfem2x.physics.flow.interface import positive_fraction
+from pfem2x.physics.flow.passes import TwoPasses
 from pfem2x.physics.flow.pfem2_capillary import ParticleCapillary
 from pfem2x.physics.flow.problem import FlowSolver
 from pfem2x.physics.flow.projection import PressureProjection
@@ -171,7 +174,7 @@ from pfem2x.scene import Scene
 __all__ = ["LagrangianFlow"]
 
 
-class LagrangianFlow(ParticleCapillary, ParticleTransfers, FlowSolver):
+class LagrangianFlow(TwoPasses, ParticleCapillary, ParticleTransfers, FlowSolver):
     """PFEM-2 fractional-step NS with particle velocity and sharp particle phase.
 
     See the module docstring for the step. Diagnostics are those of
@@ -186,7 +189,7 @@ class LagrangianFlow(ParticleCapillary, ParticleTransfers, FlowSolver):
 
     name = "flow-lagrangian"
     checkpoint_state = ("rho", "mu", "frac", "u_hat", "force", "force_heavy", "du", "_u_old",
-                        "_mom_nodes", "step_count", "dist")  # fmt: skip
+                        "_mom_nodes", "step_count", "dist", "_a_old")  # fmt: skip
 
     def __init__(self, scene: Scene, domain: Domain):
         super().__init__(scene, domain)
@@ -205,6 +208,8 @@ class LagrangianFlow(ParticleCapillary, ParticleTransfers, FlowSolver):
             pr.two_phase and fl.light_source == "gravity" and not self.gravity_only
         )
         self.extra_pass = bool(fl.extra_pass)
+        #: the passes' moves in this many time-blended parts (flow.pass_splits, .passes)
+        self.pass_splits = int(fl.pass_splits)
         #: the explicit source's pressure solved from u^n each step (flow.explicit_pressure)
         self.consistent_pressure = not self.gravity_only and fl.explicit_pressure == "consistent"
         #: the source integrated along the path (False: its end points; for measurements)
@@ -229,6 +234,10 @@ class LagrangianFlow(ParticleCapillary, ParticleTransfers, FlowSolver):
         self.force = compat.dolfinx.fem.Function(self.V)  # a = g - grad(p)/rho (P1)
         self.du = compat.dolfinx.fem.Function(self.V)
         self._u_old = compat.dolfinx.fem.Function(self.V)  # u^n for the extra pass
+        #: a^n of the last step (flow.predictor = "extrapolated", :mod:`.passes`)
+        self._a_old = None
+        if self.extra_pass and fl.predictor == "extrapolated":
+            self._a_old = compat.dolfinx.fem.Function(self.V)
         self.force_heavy: Any = None  # flow.light_source = "gravity": the heavy phase's a
         #: two phases with gravity: the balanced body force and the level set it is
         #: built from (the P1 projection of the particles' signed distance)
@@ -544,10 +553,13 @@ class LagrangianFlow(ParticleCapillary, ParticleTransfers, FlowSolver):
         else:
             self.m_solver.set_operator(self.A_m)
 
-    def _pass(self, dt: float, theta: float) -> None:
-        """Steps 1–4 of one pass."""
+    def _pass(self, dt: float, theta: float, blend: tuple | None = None) -> None:
+        """Steps 1–4 of one pass; ``blend = (a0, a1, m)``: the move of :meth:`_blended_move`."""
         with self.timer("particles"):
-            self._move(dt, theta)
+            if blend is None:
+                self._move(dt, theta)
+            else:
+                self._blended_move(dt, *blend)
             self._project_velocity()
             self._update_phase_fields()
         self._mesh_step(dt)
@@ -589,25 +601,12 @@ class LagrangianFlow(ParticleCapillary, ParticleTransfers, FlowSolver):
         self.dt_c.value = dt
         if self.consistent_pressure:
             self._consistent_pressure()
-        self.dt_last = dt
         c = self.cloud_
         if self.extra_pass:
-            with self.timer("particles"):
-                saved = c.extract()
-                self._u_old.x.array[:] = self.u.x.array
-                p_old = self.p.x.array.copy()
-                force_old = self.force.x.array.copy()
-            self._pass(dt, 0.0)
-            # second pass from the start-of-step state, theta = 1/2 in eq. 2.10
-            with self.timer("particles"):
-                c.remove(np.ones(c.n, dtype=bool))
-                names = c.field_names
-                c.append(saved["__x"], saved["__c"], {k: saved[k] for k in names})
-                self.force.x.array[:] = 0.5 * (self.force.x.array + force_old)
-                self.p.x.array[:] = p_old
-            self._pass(dt, 0.5)
+            self._two_passes(dt)  # (reads the last step's dt_last)
         else:
             self._pass(dt, 0.0)
+        self.dt_last = dt
         with self.timer("particles"):
             self._rebalance()
         self.step_count += 1
