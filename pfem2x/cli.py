@@ -15,9 +15,19 @@ from pathlib import Path
 __all__ = ["entry", "main"]
 
 
+#: the commands (the sub-parsers of :func:`_parser`)
+_COMMANDS = ("run", "check", "scenes", "study")
+
+
 class _Parser(argparse.ArgumentParser):
+    #: the arguments being parsed (for the help hint of an error)
+    argv: list[str] = []
+
     def error(self, message: str) -> None:  # one line, exit 2, no usage dump
-        print(f"error: {message} (see `pfem2x {self.prog.split()[-1]} --help`)", file=sys.stderr)
+        words = self.prog.split()
+        if len(words) == 1:  # the main parser (also for a command's unknown options)
+            words += [a for a in self.argv[:1] if a in _COMMANDS]
+        print(f"error: {message} (see `{' '.join(words)} --help`)", file=sys.stderr)
         raise SystemExit(2)
 
 
@@ -51,7 +61,9 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``pfem2x`` console script."""
-    args = _parser().parse_args(argv)
+    parser = _parser()
+    parser.argv = list(sys.argv[1:] if argv is None else argv)
+    args = parser.parse_args(parser.argv)
     if args.cmd == "scenes":
         return _scenes()
     if args.cmd == "study":  # a serial driver: no MPI, no DOLFINx

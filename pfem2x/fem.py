@@ -82,6 +82,13 @@ class LinearSolver:
                     pc.setType("jacobi")
                 else:
                     pc.setType("none")
+        if kind == "gmres":
+            # classical Gram-Schmidt without re-orthogonalisation broke down (PETSc reason
+            # -5) in the rising bubble's momentum solve at 50 x the capillary step limit;
+            # re-orthogonalise when the test sees a loss (a user's PETSC_OPTIONS win)
+            opts = PETSc.Options()
+            if not opts.hasName("ksp_gmres_cgs_refinement_type"):
+                opts["ksp_gmres_cgs_refinement_type"] = "refine_ifneeded"
         self.ksp.setFromOptions()
         self.last_iterations = 0
 

@@ -147,6 +147,8 @@ def test_binary_scene_file(tmp_path):
         (["check", "dam-break", "--set", 'flow.time_factor="1e308*10"'], ["flow.time_factor"]),
         (["run"], ["scene"]),
         (["frobnicate"], ["frobnicate"]),
+        (["run", "gaussian-hill", "--bogus"], ["--bogus", "`pfem2x run --help`"]),
+        (["--bogus"], ["`pfem2x --help`"]),
     ],
 )
 def test_bad_cli(args, needles):
