@@ -800,6 +800,8 @@ def evaluate_p1(x, cells, vals, M):
 
 @njit(cache=True, error_model="numpy")
 def _evaluate_p1(x, cells, vals, origin, inv, dofs):
+    if x.shape[1] == 2 and dofs.shape[1] == 3:
+        return _evaluate_p1_tri(x, cells, vals, origin, inv, dofs)
     n = x.shape[0]
     k = vals.shape[1]
     out = np.empty((n, k))
@@ -811,6 +813,23 @@ def _evaluate_p1(x, cells, vals, origin, inv, dofs):
         _eval_vec(vals, dofs, c, lam, tmp, 1.0, False)
         for j in range(k):
             out[p, j] = tmp[j]
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def _evaluate_p1_tri(x, cells, vals, origin, inv, dofs):
+    """:func:`evaluate_p1` for triangles in 2D (same operations, scalar registers)."""
+    n = x.shape[0]
+    k = vals.shape[1]
+    out = np.empty((n, k))
+    for p in range(n):
+        c = cells[p]
+        l0, l1, l2, _l3 = _bary_s(x[p, 0], x[p, 1], 0.0, c, origin, inv, 2)
+        d0 = dofs[c, 0]
+        d1 = dofs[c, 1]
+        d2 = dofs[c, 2]
+        for j in range(k):
+            out[p, j] = l0 * vals[d0, j] + l1 * vals[d1, j] + l2 * vals[d2, j]
     return out
 
 
