@@ -593,10 +593,10 @@ def _path_lanes_tri(x, cell, t_left, aux, acc, stage, dt, un, q, has_q, courant,
     operation; two particles advance side by side so that the processor
     overlaps their latency-bound chains (walk, velocity gather, next walk). A
     particle stops at the end of its path or before its first sub-step that is
-    not regular (a walk that does not end inside a local cell); its state (position, cell, time left,
-    displacement, source integral) is written back for :func:`_advect_p1_dim`,
-    which redoes that sub-step and finishes the particle. Returns the sub-steps
-    taken.
+    not regular (a walk that does not end inside a local cell); its state
+    (position, cell, time left, displacement, source integral) is written back
+    for :func:`_advect_p1_dim`, which redoes that sub-step and finishes the
+    particle. Returns the sub-steps taken.
     """
     n = x.shape[0]
     kq = q.shape[1]
