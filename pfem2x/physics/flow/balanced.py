@@ -135,13 +135,11 @@ class JumpForce:
         self.Pi.x.array[:] = rho * q
 
 
-def closest_points(points: np.ndarray, segs: np.ndarray, chunk: int = 0) -> np.ndarray:
+def closest_points(points: np.ndarray, segs: np.ndarray) -> np.ndarray:
     """The closest point of the segments ``(m, 2, 2)`` to each point ``(n, 2)``: ``(n, 2)``.
 
-    Compiled (:func:`~pfem2x.physics.flow._kernels.closest_points_kernel`), every point
-    against every segment; ``chunk`` is not used (the memory bound of an earlier
-    vectorised version).
+    Every point against every segment, compiled
+    (:func:`~pfem2x.physics.flow._kernels.closest_points_kernel`).
     """
-    del chunk
     pts = np.ascontiguousarray(points, dtype=np.float64)
     return closest_points_kernel(pts, np.ascontiguousarray(segs, dtype=np.float64))
