@@ -74,4 +74,4 @@ def test_closest_points_on_segments():
     segs = np.array([[[0.0, 0.0], [1.0, 0.0]], [[1.0, 0.0], [1.0, 1.0]]])
     pts = np.array([[0.5, -2.0], [2.0, 0.5], [0.2, 0.1], [3.0, 3.0]])
     want = np.array([[0.5, 0.0], [1.0, 0.5], [0.2, 0.0], [1.0, 1.0]])
-    assert np.allclose(closest_points(pts, segs, chunk=3), want, atol=1e-15)
+    assert np.allclose(closest_points(pts, segs), want, atol=1e-15)

@@ -248,3 +248,46 @@ def test_theta_stage_without_contraction_terminates(comm):
     exact = (cl["x0"] + 3.0 * 0.5) / 4.0
     err = np.abs(cl.x - exact).max() if cl.n else 0.0
     assert comm.allreduce(err, op=MPI.MAX) < 1e-9
+
+
+@pytest.mark.parametrize("mode", ["courant", "fixed", "theta"])
+def test_triangle_fast_path_equals_generic_loop(mode):
+    """The 2D move (two particles side by side, then the per-particle loop) is the generic loop.
+
+    Same state, velocities and source through :func:`_advect_p1_tri` and
+    :func:`_advect_p1_any`: positions, cells, displacements, source integrals
+    and sub-step counts equal to the last bit (walls, periodic wrap, the
+    theta stage and particles stopping at an outflow included).
+    """
+    from pfem2x.particles import _kernels as K  # noqa: PLC0415
+
+    d = build_mesh(
+        MPI.COMM_SELF, "rectangle", [[0.0, 0.0], [2.0, 1.0]], [20, 10], periodic=[True, False]
+    )
+    cl = Cloud(d, {"T": ()}, outflow=lambda x: (x[:, 1] > 1.0 - 1e-9) & (x[:, 0] > 1.5))
+    seed_cells(cl, 6, seed=5)
+    V = compat.function_space(d.mesh, 1, (2,))
+    u, u1, f = (dolfinx.fem.Function(V) for _ in range(3))
+    u.interpolate(lambda x: np.stack([1.5 + np.sin(3 * x[1]), 0.8 * np.cos(2 * np.pi * x[0])]))
+    u1.interpolate(lambda x: np.stack([1.0 + x[1], 0.5 * np.sin(2 * np.pi * x[0])]))
+    f.interpolate(lambda x: np.stack([np.cos(x[0]), x[0] * x[1]]))
+    M = cl.pmesh.arrays
+    un, un1, q = (np.asarray(g.x.array).reshape(-1, 2).copy() for g in (u, u1, f))
+    dt, theta = 0.4, (0.5 if mode == "theta" else 0.0)
+    nsub = 9 if mode == "fixed" else 0
+    results = []
+    for kern in (K._advect_p1_tri, K._advect_p1_any):
+        n = cl.n
+        x, cell = cl.x.copy(), cl.cells.copy()
+        t_left, stage = np.full(n, dt), np.zeros(n)
+        aux, acc, status = np.zeros((n, 2)), np.zeros((n, 2)), np.zeros(n, dtype=np.int8)
+        steps = kern(
+            x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, True, 0.5, 0.1,
+            nsub, M.origin, M.inv, M.nbr, M.pshift, M.period, M.h, M.dofs, M.n_owned,
+        )  # fmt: skip
+        results.append((steps, x, cell, t_left, aux, acc, stage, status))
+    (s1, *a1), (s2, *a2) = results
+    assert s1 == s2 > cl.n
+    assert (a1[-1] == K.ST_OUTFLOW).any()  # some particles leave on the way
+    for v1, v2 in zip(a1, a2, strict=True):
+        assert np.array_equal(v1, v2)

@@ -90,3 +90,31 @@ def test_new_values_stay_near_their_samples(comm):
     lo = comm.allreduce(t.min() if cl.n else np.inf, op=MPI.MIN)
     hi = comm.allreduce(t.max() if cl.n else -np.inf, op=MPI.MAX)
     assert -1.0 - 1e-12 <= lo and hi <= 2.0 + 1e-12, (lo, hi)
+
+
+def test_replace_sorted_is_remove_append_sort():
+    """One permutation gives the storage of remove, append and sort_by_cell in turn."""
+    d = build_mesh(MPI.COMM_SELF, "rectangle", [[0.0, 0.0], [1.0, 1.0]], [6, 6])
+    clouds = [Cloud(d, {"T": (), "v": (2,)}) for _ in range(2)]
+    for cl in clouds:
+        seed_cells(cl, 5, seed=4)
+        cl["T"] = np.arange(cl.n, dtype=float)
+        cl["v"] = cl.x[:, ::-1]
+        cl.x[:] = cl.x[::-1].copy()  # unsorted storage (cells follow)
+        cl.cells[:] = cl.cells[::-1].copy()
+    n = clouds[0].n
+    rng = np.random.default_rng(2)
+    remove = rng.random(n) < 0.3
+    new = Cloud(d, {"T": (), "v": (2,)})
+    seed_cells(new, 2, seed=9)
+    vals = {"T": -1.0 - np.arange(new.n), "v": new.x.copy()}
+    a, b = clouds
+    assert a.remove(remove) == remove.sum()
+    a.append(new.x, new.cells, vals)
+    off_a = a.sort_by_cell()
+    assert b.replace_sorted(remove, new.x, new.cells, vals) == (remove.sum(), new.n)
+    assert np.array_equal(off_a, b.cell_offsets())
+    assert np.array_equal(a.x, b.x) and np.array_equal(a.cells, b.cells)
+    for name in ("T", "v"):
+        assert np.array_equal(a.field(name), b.field(name))
+    assert b.check()

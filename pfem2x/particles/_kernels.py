@@ -569,11 +569,219 @@ def _advect_p1_tri(
     x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
     gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned,
 ):  # fmt: skip
-    """:func:`advect_p1` for triangles in 2D (:func:`_advect_p1_dim` for a constant ``dim = 2``)."""
-    return _advect_p1_dim(
+    """:func:`advect_p1` for triangles in 2D (:func:`_advect_p1_dim` for a constant ``dim = 2``).
+
+    The regular sub-steps go first, two particles at a time (:func:`_path_lanes_tri`);
+    :func:`_advect_p1_dim` then finishes every particle from where they left it.
+    """
+    fast = _path_lanes_tri(
+        x, cell, t_left, aux, acc, stage, dt, un, q, has_q, courant, gcourant, nsub, origin,
+        inv, nbr, pshift, period, hc, dofs,
+    )  # fmt: skip
+    return fast + _advect_p1_dim(
         x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
         gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, 2,
     )  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy")
+def _path_lanes_tri(x, cell, t_left, aux, acc, stage, dt, un, q, has_q, courant, gcourant,
+                    nsub, origin, inv, nbr, pshift, period, hc, dofs):  # fmt: skip
+    """The regular path sub-steps of every particle in stage 0, two particles interleaved.
+
+    Each particle's sub-steps are those of :func:`_advect_p1_dim`, operation for
+    operation; two particles advance side by side so that the processor
+    overlaps their latency-bound chains (walk, velocity gather, next walk). A
+    particle stops at the end of its path or before its first sub-step that is
+    not regular (a walk that does not end inside a local cell); its state
+    (position, cell, time left, displacement, source integral) is written back
+    for :func:`_advect_p1_dim`, which redoes that sub-step and finishes the
+    particle. Returns the sub-steps taken.
+    """
+    n = x.shape[0]
+    kq = q.shape[1]
+    ak = np.zeros((2, kq))
+    tol = 1e-14 * dt
+    nsteps = 0
+    nxt = 0
+    # lane A: particle pa (-1: idle), lane B: pb
+    pa = -1
+    pb = -1
+    a_p0 = a_p1 = a_l0 = a_l1 = a_l2 = a_tl = a_a0 = a_a1 = 0.0
+    b_p0 = b_p1 = b_l0 = b_l1 = b_l2 = b_tl = b_a0 = b_a1 = 0.0
+    a_c = b_c = 0
+    while True:
+        if pa < 0:
+            while nxt < n and (stage[nxt] != STAGE_PATH or not t_left[nxt] > tol):
+                nxt += 1
+            if nxt < n:
+                pa = nxt
+                nxt += 1
+                a_c = cell[pa]
+                a_p0 = x[pa, 0]
+                a_p1 = x[pa, 1]
+                a_tl = t_left[pa]
+                a_a0 = aux[pa, 0]
+                a_a1 = aux[pa, 1]
+                a_l0, a_l1, a_l2, _l3 = _bary_s(a_p0, a_p1, 0.0, a_c, origin, inv, 2)
+                if has_q:
+                    for j in range(kq):
+                        ak[0, j] = acc[pa, j]
+        if pb < 0:
+            while nxt < n and (stage[nxt] != STAGE_PATH or not t_left[nxt] > tol):
+                nxt += 1
+            if nxt < n:
+                pb = nxt
+                nxt += 1
+                b_c = cell[pb]
+                b_p0 = x[pb, 0]
+                b_p1 = x[pb, 1]
+                b_tl = t_left[pb]
+                b_a0 = aux[pb, 0]
+                b_a1 = aux[pb, 1]
+                b_l0, b_l1, b_l2, _l3 = _bary_s(b_p0, b_p1, 0.0, b_c, origin, inv, 2)
+                if has_q:
+                    for j in range(kq):
+                        ak[1, j] = acc[pb, j]
+        if pa < 0 and pb < 0:
+            break
+        if pa >= 0:
+            # -- one sub-step of lane A (the operations of _advect_p1_dim)
+            d0 = dofs[a_c, 0]
+            d1 = dofs[a_c, 1]
+            d2 = dofs[a_c, 2]
+            v0 = _eval_s(un, 0, d0, d1, d2, 0, a_l0, a_l1, a_l2, 0.0, 2)
+            v1 = _eval_s(un, 1, d0, d1, d2, 0, a_l0, a_l1, a_l2, 0.0, 2)
+            if nsub > 0:
+                h = dt / nsub
+                m = np.ceil(a_tl / h - 1e-9)
+                if m < 1.0:
+                    m = 1.0
+                h = a_tl / m
+            else:
+                rate = np.sqrt(v0 * v0 + v1 * v1) / (courant * hc[a_c])
+                if gcourant > 0.0:
+                    gr = _grad_norm_s(un, d0, d1, d2, 0, a_c, inv, 2) / gcourant
+                    if gr > rate:
+                        rate = gr
+                m = np.ceil(a_tl * rate)
+                if m < 1.0:
+                    m = 1.0
+                h = a_tl / m
+            _x0, _x1, _x2, cm, s, m0, m1, m2, _m3, _s0, _s1, _s2 = _walk_s(
+                a_p0 + h * v0, a_p1 + h * v1, 0.0, a_c, origin, inv, nbr, pshift, period, 1000, 2
+            )
+            ok = s == ST_OK
+            if ok:
+                e0 = dofs[cm, 0]
+                e1 = dofs[cm, 1]
+                e2 = dofs[cm, 2]
+                w0 = _eval_s(un, 0, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
+                w1 = _eval_s(un, 1, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
+                n0, n1, _n2, cn, s, k0, k1, k2, _k3, s0, s1, _s2 = _walk_s(
+                    a_p0 + 0.5 * h * (v0 + w0), a_p1 + 0.5 * h * (v1 + w1), 0.0, a_c, origin,
+                    inv, nbr, pshift, period, 1000, 2,
+                )  # fmt: skip
+                ok = s == ST_OK
+            if ok:
+                if has_q:
+                    f0 = dofs[cn, 0]
+                    f1 = dofs[cn, 1]
+                    f2 = dofs[cn, 2]
+                    for j in range(kq):
+                        qv = _eval_s(q, j, d0, d1, d2, 0, a_l0, a_l1, a_l2, 0.0, 2)
+                        qe = _eval_s(q, j, f0, f1, f2, 0, k0, k1, k2, 0.0, 2)
+                        ak[0, j] += 0.5 * h * (qv + qe)
+                a_a0 += n0 - s0 - a_p0
+                a_a1 += n1 - s1 - a_p1
+                a_p0 = n0
+                a_p1 = n1
+                a_tl -= h
+                a_c = cn
+                a_l0 = k0
+                a_l1 = k1
+                a_l2 = k2
+                nsteps += 1
+            if not ok or not a_tl > tol:
+                x[pa, 0] = a_p0
+                x[pa, 1] = a_p1
+                cell[pa] = a_c
+                t_left[pa] = a_tl
+                aux[pa, 0] = a_a0
+                aux[pa, 1] = a_a1
+                if has_q:
+                    for j in range(kq):
+                        acc[pa, j] = ak[0, j]
+                pa = -1
+        if pb >= 0:
+            # -- one sub-step of lane B (the operations of _advect_p1_dim)
+            d0 = dofs[b_c, 0]
+            d1 = dofs[b_c, 1]
+            d2 = dofs[b_c, 2]
+            v0 = _eval_s(un, 0, d0, d1, d2, 0, b_l0, b_l1, b_l2, 0.0, 2)
+            v1 = _eval_s(un, 1, d0, d1, d2, 0, b_l0, b_l1, b_l2, 0.0, 2)
+            if nsub > 0:
+                h = dt / nsub
+                m = np.ceil(b_tl / h - 1e-9)
+                if m < 1.0:
+                    m = 1.0
+                h = b_tl / m
+            else:
+                rate = np.sqrt(v0 * v0 + v1 * v1) / (courant * hc[b_c])
+                if gcourant > 0.0:
+                    gr = _grad_norm_s(un, d0, d1, d2, 0, b_c, inv, 2) / gcourant
+                    if gr > rate:
+                        rate = gr
+                m = np.ceil(b_tl * rate)
+                if m < 1.0:
+                    m = 1.0
+                h = b_tl / m
+            _x0, _x1, _x2, cm, s, m0, m1, m2, _m3, _s0, _s1, _s2 = _walk_s(
+                b_p0 + h * v0, b_p1 + h * v1, 0.0, b_c, origin, inv, nbr, pshift, period, 1000, 2
+            )
+            ok = s == ST_OK
+            if ok:
+                e0 = dofs[cm, 0]
+                e1 = dofs[cm, 1]
+                e2 = dofs[cm, 2]
+                w0 = _eval_s(un, 0, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
+                w1 = _eval_s(un, 1, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
+                n0, n1, _n2, cn, s, k0, k1, k2, _k3, s0, s1, _s2 = _walk_s(
+                    b_p0 + 0.5 * h * (v0 + w0), b_p1 + 0.5 * h * (v1 + w1), 0.0, b_c, origin,
+                    inv, nbr, pshift, period, 1000, 2,
+                )  # fmt: skip
+                ok = s == ST_OK
+            if ok:
+                if has_q:
+                    f0 = dofs[cn, 0]
+                    f1 = dofs[cn, 1]
+                    f2 = dofs[cn, 2]
+                    for j in range(kq):
+                        qv = _eval_s(q, j, d0, d1, d2, 0, b_l0, b_l1, b_l2, 0.0, 2)
+                        qe = _eval_s(q, j, f0, f1, f2, 0, k0, k1, k2, 0.0, 2)
+                        ak[1, j] += 0.5 * h * (qv + qe)
+                b_a0 += n0 - s0 - b_p0
+                b_a1 += n1 - s1 - b_p1
+                b_p0 = n0
+                b_p1 = n1
+                b_tl -= h
+                b_c = cn
+                b_l0 = k0
+                b_l1 = k1
+                b_l2 = k2
+                nsteps += 1
+            if not ok or not b_tl > tol:
+                x[pb, 0] = b_p0
+                x[pb, 1] = b_p1
+                cell[pb] = b_c
+                t_left[pb] = b_tl
+                aux[pb, 0] = b_a0
+                aux[pb, 1] = b_a1
+                if has_q:
+                    for j in range(kq):
+                        acc[pb, j] = ak[1, j]
+                pb = -1
+    return nsteps
 
 
 @njit(cache=True, error_model="numpy")
@@ -800,6 +1008,8 @@ def evaluate_p1(x, cells, vals, M):
 
 @njit(cache=True, error_model="numpy")
 def _evaluate_p1(x, cells, vals, origin, inv, dofs):
+    if x.shape[1] == 2 and dofs.shape[1] == 3:
+        return _evaluate_p1_tri(x, cells, vals, origin, inv, dofs)
     n = x.shape[0]
     k = vals.shape[1]
     out = np.empty((n, k))
@@ -811,6 +1021,23 @@ def _evaluate_p1(x, cells, vals, origin, inv, dofs):
         _eval_vec(vals, dofs, c, lam, tmp, 1.0, False)
         for j in range(k):
             out[p, j] = tmp[j]
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def _evaluate_p1_tri(x, cells, vals, origin, inv, dofs):
+    """:func:`evaluate_p1` for triangles in 2D (same operations, scalar registers)."""
+    n = x.shape[0]
+    k = vals.shape[1]
+    out = np.empty((n, k))
+    for p in range(n):
+        c = cells[p]
+        l0, l1, l2, _l3 = _bary_s(x[p, 0], x[p, 1], 0.0, c, origin, inv, 2)
+        d0 = dofs[c, 0]
+        d1 = dofs[c, 1]
+        d2 = dofs[c, 2]
+        for j in range(k):
+            out[p, j] = l0 * vals[d0, j] + l1 * vals[d1, j] + l2 * vals[d2, j]
     return out
 
 

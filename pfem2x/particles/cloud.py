@@ -235,6 +235,33 @@ class Cloud:
         self._offsets = None
         return newpos
 
+    def replace_sorted(
+        self,
+        remove: np.ndarray,
+        x: np.ndarray,
+        cells: np.ndarray,
+        values: Mapping[str, Any] | None = None,
+    ) -> tuple[int, int]:
+        """Remove particles, append new ones and sort by cell, permuting the storage once.
+
+        The result is that of :meth:`remove` (``remove`` a mask), :meth:`append`
+        and :meth:`sort_by_cell` in turn: in each cell the kept particles in
+        their storage order, then the new ones in the order given.
+
+        Returns
+        -------
+        tuple of int
+            Particles removed and added.
+        """
+        n = self._n
+        remove = np.asarray(remove, dtype=bool)
+        sl = self.append(x, cells, values)
+        keep = np.concatenate([np.flatnonzero(~remove), np.arange(n, self._n)])
+        order, offsets = K.counting_sort(self._c[keep], self.pmesh.n_cells)
+        self._take(keep[order])
+        self._offsets = offsets
+        return int(remove.sum()), sl.stop - sl.start
+
     def extract(self, idx: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """Copies of positions, cells and all fields (hidden ones too) of ``idx`` (all: None).
 

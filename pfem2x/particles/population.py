@@ -82,14 +82,15 @@ def rebalance(
     PopulationStats
     """
     pm = cloud.pmesh
-    offsets = cloud.sort_by_cell()
+    # the cell order by indirection: the storage is permuted once, at the end
+    order, offsets = K.counting_sort(cloud.cells, pm.n_cells)
     only = np.zeros(0, dtype=bool) if cells is None else np.asarray(cells, dtype=bool)
     plan = K.population_plan(offsets, pm.n_owned, int(nmin), int(nmax), only)
     stats = PopulationStats()
     if not plan.any():
+        cloud.sort_by_cell()
         return stats
     n = cloud.n
-    order = np.arange(n, dtype=np.int64)
     names = cloud.field_names
     widths = [cloud.field2d(nm).shape[1] for nm in names]
     nx, ncell, nvals, src = K.population_add(
@@ -107,13 +108,10 @@ def rebalance(
     )
     remove = np.zeros(n, dtype=bool)
     K.population_remove(cloud.x, order, offsets, plan, remove)
-    stats.removed = cloud.remove(remove)
     values = _unpacked_fields(nvals, names, widths)
     if names:
         _count_and_fill(cloud, values, src, nx, ncell, fallback, stats)
-    sl = cloud.append(nx, ncell, values)
-    stats.added = sl.stop - sl.start
-    cloud.sort_by_cell()
+    stats.removed, stats.added = cloud.replace_sorted(remove, nx, ncell, values)
     return stats
 
 

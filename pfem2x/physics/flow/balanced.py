@@ -60,6 +60,7 @@ import numpy as np
 import ufl
 
 from pfem2x import compat
+from pfem2x.physics.flow._kernels import closest_points_kernel
 from pfem2x.physics.flow.interface import InterfaceGeometry
 
 __all__ = ["JumpForce", "closest_points"]
@@ -134,19 +135,11 @@ class JumpForce:
         self.Pi.x.array[:] = rho * q
 
 
-def closest_points(points: np.ndarray, segs: np.ndarray, chunk: int = 2_000_000) -> np.ndarray:
-    """The closest point of the segments ``(m, 2, 2)`` to each point ``(n, 2)``: ``(n, 2)``."""
-    n, m = len(points), len(segs)
-    a = segs[:, 0]
-    ab = segs[:, 1] - a
-    ab2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
-    out = np.empty((n, 2))
-    step = max(1, chunk // max(m, 1))
-    for k in range(0, n, step):  # chunks of points (memory), all segments at once
-        ap = points[k : k + step, None, :] - a[None, :, :]
-        s = np.clip(np.einsum("nmj,mj->nm", ap, ab) / ab2, 0.0, 1.0)
-        c = a[None, :, :] + s[:, :, None] * ab[None, :, :]
-        d = points[k : k + step, None, :] - c
-        best = np.argmin(np.einsum("nmj,nmj->nm", d, d), axis=1)
-        out[k : k + step] = c[np.arange(len(best)), best]
-    return out
+def closest_points(points: np.ndarray, segs: np.ndarray) -> np.ndarray:
+    """The closest point of the segments ``(m, 2, 2)`` to each point ``(n, 2)``: ``(n, 2)``.
+
+    Every point against every segment, compiled
+    (:func:`~pfem2x.physics.flow._kernels.closest_points_kernel`).
+    """
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    return closest_points_kernel(pts, np.ascontiguousarray(segs, dtype=np.float64))

@@ -17,6 +17,7 @@ import ufl
 
 from pfem2x import compat
 from pfem2x.compat import MPI
+from pfem2x.physics.flow._kernels import positive_fraction_kernel
 
 __all__ = ["InterfaceGeometry", "cut_segments", "positive_fraction", "segment_distance"]
 
@@ -35,19 +36,7 @@ def positive_fraction(vals: np.ndarray) -> np.ndarray:
     -------
     ``(n,)`` fractions in [0, 1].
     """
-    v = np.where(vals == 0.0, 1e-300, vals)
-    npos = np.count_nonzero(v > 0, axis=1)
-    s = np.sort(v, axis=1)
-    # the odd vertex: the positive one (npos == 1) or the negative one (npos == 2)
-    a = np.where(npos == 1, s[:, 2], s[:, 0])
-    b = np.where(npos == 1, s[:, 0], s[:, 1])
-    c = np.where(npos == 1, s[:, 1], s[:, 2])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        f = a * a / ((a - b) * (a - c))
-    f = np.clip(np.nan_to_num(f), 0.0, 1.0)
-    out = np.where(npos == 1, f, 1.0 - f)
-    out = np.where(npos == 3, 1.0, out)
-    return np.where(npos == 0, 0.0, out)
+    return positive_fraction_kernel(np.ascontiguousarray(vals, dtype=np.float64))
 
 
 def cut_segments(vals: np.ndarray, xy: np.ndarray) -> np.ndarray:
