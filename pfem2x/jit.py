@@ -173,6 +173,18 @@ def exercise_particles() -> None:
     drop[::3] = True
     cloud.remove(drop)
     P.rebalance(cloud, 6, 0, seed=4, fallback={"T": T, "u": u})
+    _exercise_interface(xv[:4])
+
+
+def _exercise_interface(points: Any) -> None:
+    """The flow's compiled interface geometry (balanced gravity, cut-cell densities) once."""
+    import numpy as np  # noqa: PLC0415
+
+    from pfem2x.physics.flow.balanced import closest_points  # noqa: PLC0415
+    from pfem2x.physics.flow.interface import positive_fraction  # noqa: PLC0415
+
+    closest_points(points, np.array([[[0.0, 0.5], [1.0, 0.5]]]))
+    positive_fraction(np.array([[1.0, -1.0, 0.5]]))
 
 
 def warm_up(say: Callable[[str], Any] | None = None, comm: Any = None) -> float:
