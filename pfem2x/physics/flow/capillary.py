@@ -280,9 +280,11 @@ class CapillaryForce:
         self._sigma_c = compat.dolfinx.fem.Constant(mesh, compat.PETSc.ScalarType(self.sigma))
         #: smallest and largest segment curvature of the last update
         self.curvature_range = (0.0, 0.0)
-        #: segments whose curvature fell back to the end-point fit (no distance fit)
+        #: segments whose curvature fell back to the end-point fit (no distance fit), of all
         self.fallback_segments = 0
-        #: the last fit: all segments, their normals, (lambda, A, B, D) and its use
+        self.segment_count = 0
+        #: the last fit: all segments, their normals, (lambda, A, B, D) and whether its circle
+        #: passes the misfit test (whatever its lambda)
         self._circles: tuple[np.ndarray, ...] = (np.zeros((0, 2, 2)),) * 4
         self._kept = np.zeros(len(self._xy), dtype=bool)  # the nodes of the cut cells
 
@@ -296,19 +298,63 @@ class CapillaryForce:
         the distance to the P1 iso-line's chords (off by up to :math:`h^2\\kappa/8`):
         a circle stays a circle, and a cell the interface enters next has good samples.
         """
-        allsegs, normals, coef, ok = self._circles
-        if not len(allsegs):
+        if not len(self._circles[0]):
             return
         idx = np.flatnonzero(~self._kept & (np.abs(phi) < band))
-        pi, si = closest_pairs(self._xy[idx], allsegs, 1e-9 * self.radius)
-        good = ok[si]  # (tied segments: the mean of their circles' distances)
-        pi, si = pi[good], si[good]
-        d = np.abs(circle_distance(self._xy[idx[pi]], allsegs[si], normals[si], coef[si]))
-        cnt = np.bincount(pi, minlength=len(idx))
-        has = cnt > 0
-        dm = np.bincount(pi, weights=d, minlength=len(idx))[has] / cnt[has]
+        dm, has = self._fitted_distance(self._xy[idx], segments=False)
         idx = idx[has]
         phi[idx] = np.where(phi[idx] >= 0.0, 1.0, -1.0) * dm
+
+    def redistance_samples(self, points: np.ndarray, values: np.ndarray, band: float) -> int:
+        r"""Samples within ``band`` of the interface: their distance to it (in place; local).
+
+        After :meth:`update` (its fit): each sample ``values`` ``(p,)`` at ``points``
+        ``(p, 2)`` with :math:`|v| <` ``band`` gets the distance to the circle fitted to
+        its closest segment (:func:`.curvature.circle_distance`; equidistant segments: the
+        mean; whatever the fit's stretch :math:`\lambda`), or where that circle misses the
+        iso-line (:attr:`misfit_tolerance`) the distance to the segment itself (the
+        iso-line's end points on a quadratic per edge), with its own sign. PFEM-2's carried
+        ``dist`` is so kept a signed distance (:math:`\lambda = 1`) near the interface,
+        where the fit takes its samples; on a circle or a straight line the values do not
+        change (to round-off), nor the interface projected from them.
+
+        Returns
+        -------
+        The number of samples re-distanced.
+        """
+        if not len(self._circles[0]):
+            return 0
+        idx = np.flatnonzero(np.abs(values) < band)
+        dm, _ = self._fitted_distance(points[idx], segments=True)
+        values[idx] = np.where(values[idx] >= 0.0, 1.0, -1.0) * dm
+        return len(idx)
+
+    def _fitted_distance(self, pts: np.ndarray, segments: bool) -> tuple[np.ndarray, ...]:
+        """Distance of ``pts`` to the last fit's circles of their closest segments.
+
+        ``segments``: where a closest segment's fit is not used, the distance to that
+        segment; else such pairs are left out. Returns the distances of the points that
+        have one and which those are (a mask).
+        """
+        allsegs, normals, coef, ok = self._circles
+        pi, si = closest_pairs(pts, allsegs, 1e-9 * self.radius)
+        if segments:  # (tied segments: the mean of their distances)
+            good = ok[si]
+            d = np.empty(len(pi))
+            q, s = pts[pi[good]], si[good]
+            d[good] = np.abs(circle_distance(q, allsegs[s], normals[s], coef[s]))
+            q, s = pts[pi[~good]], si[~good]
+            a, ab = allsegs[s, 0], allsegs[s, 1] - allsegs[s, 0]
+            ab2 = np.maximum(np.einsum("kj,kj->k", ab, ab), 1e-300)
+            t = np.clip(np.einsum("kj,kj->k", q - a, ab) / ab2, 0.0, 1.0)
+            d[~good] = np.linalg.norm(q - a - t[:, None] * ab, axis=1)
+        else:
+            good = ok[si]  # (tied segments: the mean of their circles' distances)
+            pi, si = pi[good], si[good]
+            d = np.abs(circle_distance(pts[pi], allsegs[si], normals[si], coef[si]))
+        cnt = np.bincount(pi, minlength=len(pts))
+        has = cnt > 0
+        return np.bincount(pi, weights=d, minlength=len(pts))[has] / cnt[has], has
 
     def force(self, H_w: Any) -> Any:
         """The UFL force :math:`f_h` with the frame's phase weight ``H_w``."""
@@ -387,10 +433,12 @@ class CapillaryForce:
         # the fitted circle must pass through the iso-line's end points around the segment
         self.misfit = circle_misfit(allsegs, normals, coef, allsegs.reshape(-1, 2), self.radius)
         ok &= self.misfit <= self.misfit_tolerance
-        # and the samples must be a signed distance (PFEM-2's dist is carried, not re-distanced)
+        # (the circles of the re-distancing: a stretched distance still fits the shape)
+        self._circles = (allsegs, normals, coef, ok.copy())
+        # and the samples must be a signed distance (PFEM-2's carried dist: see the tolerance)
         ok &= np.abs(coef[:, 0] - 1.0) <= self.stretch_tolerance
-        self._circles = (allsegs, normals, coef, ok)
         self.fallback_segments = int(np.count_nonzero(~ok))
+        self.segment_count = len(ok)
         if not ok.all():
             kap[~ok] = segment_curvature(allsegs[~ok], self.radius, normals[~ok])
         return segs, cells, allsegs, smooth_along(allsegs, kap, self.radius)

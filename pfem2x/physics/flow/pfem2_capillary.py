@@ -24,6 +24,9 @@ class ParticleCapillary:
     """Surface tension in the PFEM-2 frame (a part of :class:`~.pfem2.LagrangianFlow`)."""
 
     capillary: CapillaryForce | None
+    #: the particles' ``dist`` within this of the interface is re-distanced each update
+    #: (:meth:`_update_capillary`; 0: never)
+    redistance_band: float = 0.0
     dist: Any
     cloud_: Any
 
@@ -45,6 +48,23 @@ class ParticleCapillary:
             samples=lambda: (self.cloud_.x, self.cloud_.field("dist")),
             stretch_tolerance=0.05,
         )
+        self.redistance_band = 3.0 * self.H
+
+    def _update_capillary(self) -> None:
+        r"""The capillary force of the P1 ``dist``; then the particles' ``dist`` near it re-distanced.
+
+        Within :attr:`redistance_band` of the interface (the particles' own ``|dist|``) each
+        particle gets the distance to the interface the curvature was just fitted on
+        (:meth:`.CapillaryForce.redistance_samples`: the fitted circles), its sign kept:
+        the flow stretches the carried ``dist`` (the rising bubble's :math:`\lambda`
+        reached 6 by t = 2 at h = 1/40, and beyond :math:`|\lambda - 1| = 0.05` the
+        distance fit is not used), re-distanced each step it stays a distance. Particles
+        farther away keep theirs. ``redistance_band = 0``: not re-distanced.
+        """
+        self.capillary.update(self.dist.x.array, self.cell_vol)
+        if self.redistance_band > 0.0:
+            c = self.cloud_
+            self.capillary.redistance_samples(c.x, c.field("dist"), self.redistance_band)
 
     def _seed_capillary_dist(self, region: Any) -> None:
         """With surface tension: the particles' ``dist``, the region's distance below ``h``.
