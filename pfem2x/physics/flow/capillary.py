@@ -38,9 +38,12 @@ straight line). The samples start as the distance to the region's boundary
 sampled below the mesh size (:func:`region_distance`), and the level set's
 re-distancing gives the nodes near the interface (not of cut cells) their
 distance to the fitted circles (:meth:`CapillaryForce.redistance`): a circle
-stays a circle, and the static drop stays at rest to round-off (docs/RESULTS.md).
+stays a circle, and the static drop stays at rest to round-off (docs/RESULTS.md);
+PFEM-2 re-distances its particles within 3 cells of the interface the same way
+(:meth:`CapillaryForce.redistance_samples`, ``flow.particle_redistance``), else the
+flow stretches their carried ``dist``.
 Where the fit is not trusted (its circle farther than ``h/2`` from the
-iso-line's end points around the segment; PFEM-2's carried ``dist`` stretched
+iso-line's end points around the segment; the samples' distance stretched
 by more than 5 %; fewer than six samples) the curvature is the end-point fit:
 a weighted least-squares circle of the same form through the end points of
 the segments within ``fit_radius`` cells (each moved to the root of a
@@ -234,8 +237,8 @@ class CapillaryForce:
         Samples farther than ``1.5 h`` from the interface are not used.
     stretch_tolerance
         The distance fit is used where its :math:`|\lambda - 1|` is at most this (samples
-        that are still a signed distance; PFEM-2's ``dist`` is carried, never re-distanced,
-        and a flow stretches it: the rising bubble's :math:`\lambda` reached 6 by t = 2 at
+        that are still a signed distance; a flow stretches PFEM-2's carried ``dist`` where
+        it is not re-distanced: the rising bubble's :math:`\lambda` reached 6 by t = 2 at
         h = 1/40), and where its circle passes within ``h/2`` of the iso-line's end points
         around the segment; elsewhere the end-point fit (:func:`.segment_curvature`).
     """

@@ -5,7 +5,10 @@ level set ``dist`` (the linear-exact projection of the particles' signed distanc
 curvature fitted to the particles' own signed distances
 (:func:`~pfem2x.physics.flow.curvature.distance_curvature`), which start as the distance to
 the region's boundary sampled below the mesh size
-(:func:`~pfem2x.physics.flow.curvature.region_distance`) and are carried unchanged.
+(:func:`~pfem2x.physics.flow.curvature.region_distance`), are carried, and are re-distanced
+within 3 cells of the interface after each update of the force (``flow.particle_redistance``,
+:meth:`ParticleCapillary._update_capillary`): the distance to the circles the curvature was
+fitted with, so the flow does not stretch them (the fit's guard then rejects them).
 """
 
 from __future__ import annotations
@@ -48,10 +51,11 @@ class ParticleCapillary:
             samples=lambda: (self.cloud_.x, self.cloud_.field("dist")),
             stretch_tolerance=0.05,
         )
-        self.redistance_band = 3.0 * self.H
+        if self.scene.flow.particle_redistance:
+            self.redistance_band = 3.0 * self.H
 
     def _update_capillary(self) -> None:
-        r"""The capillary force of the P1 ``dist``; then the particles' ``dist`` near it re-distanced.
+        r"""The capillary force of the P1 ``dist``, then the particles' ``dist`` re-distanced.
 
         Within :attr:`redistance_band` of the interface (the particles' own ``|dist|``) each
         particle gets the distance to the interface the curvature was just fitted on
