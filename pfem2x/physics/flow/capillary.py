@@ -86,6 +86,7 @@ from pfem2x.physics.flow.curvature import (
     circle_misfit,
     closest_mean,
     closest_pairs,
+    closest_pairs_within,
     distance_curvature,
     oriented_segments,
     refined_segments,
@@ -257,6 +258,7 @@ class CapillaryForce:
         self.interface = interface
         self.samples = samples
         self._sample_band = 1.5 * float(h)
+        self._h = float(h)
         #: the distance fit is used where its circle passes within this distance of the
         #: iso-line's end points around the segment (:func:`.curvature.circle_misfit`)
         self.misfit_tolerance = 0.5 * float(h)
@@ -328,20 +330,27 @@ class CapillaryForce:
         if not len(self._circles[0]):
             return 0
         idx = np.flatnonzero(np.abs(values) < band)
-        dm, _ = self._fitted_distance(points[idx], segments=True)
+        # (the closest segment among those whose midpoint is within band + 2 h: a sample
+        # with none that near keeps its value)
+        dm, has = self._fitted_distance(points[idx], True, band + 2.0 * self._h)
+        idx = idx[has]
         values[idx] = np.where(values[idx] >= 0.0, 1.0, -1.0) * dm
         return len(idx)
 
-    def _fitted_distance(self, pts: np.ndarray, segments: bool) -> tuple[np.ndarray, ...]:
+    def _fitted_distance(
+        self, pts: np.ndarray, segments: bool, near: float = 0.0
+    ) -> tuple[np.ndarray, ...]:
         """Distance of ``pts`` to the last fit's circles of their closest segments.
 
         ``segments``: where a closest segment's fit is not used, the distance to that
-        segment; else such pairs are left out. Returns the distances of the points that
-        have one and which those are (a mask).
+        segment, and only segments whose midpoint is within ``near`` of the point count
+        (:func:`.curvature.closest_pairs_within`); else such pairs are left out (all
+        segments count). Returns the distances of the points that have one and which those
+        are (a mask).
         """
         allsegs, normals, coef, ok = self._circles
-        pi, si = closest_pairs(pts, allsegs, 1e-9 * self.radius)
         if segments:  # (tied segments: the mean of their distances)
+            pi, si = closest_pairs_within(pts, allsegs, near, 1e-9 * self.radius)
             good = ok[si]
             d = np.empty(len(pi))
             q, s = pts[pi[good]], si[good]
@@ -352,6 +361,7 @@ class CapillaryForce:
             t = np.clip(np.einsum("kj,kj->k", q - a, ab) / ab2, 0.0, 1.0)
             d[~good] = np.linalg.norm(q - a - t[:, None] * ab, axis=1)
         else:
+            pi, si = closest_pairs(pts, allsegs, 1e-9 * self.radius)
             good = ok[si]  # (tied segments: the mean of their circles' distances)
             pi, si = pi[good], si[good]
             d = np.abs(circle_distance(pts[pi], allsegs[si], normals[si], coef[si]))
