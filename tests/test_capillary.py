@@ -18,7 +18,12 @@ from pfem2x.physics.flow.capillary import (
     segment_curvature,
     smooth_along,
 )
-from pfem2x.physics.flow.curvature import circle_distance, circle_misfit
+from pfem2x.physics.flow.curvature import (
+    circle_distance,
+    circle_misfit,
+    closest_pairs,
+    closest_pairs_within,
+)
 from pfem2x.physics.flow.interface import positive_fraction
 from pfem2x.runner import Simulation, build_domain, make_solver
 from pfem2x.scene import load_scene
@@ -480,7 +485,7 @@ def test_particle_redistance_keeps_the_interface(shape, stretch):
     s._update_phase_fields()
     before = s.dist.x.array.copy()
     assert s.capillary.fallback_segments == (0 if stretch == 1.0 else s.capillary.segment_count)
-    s.redistance_band = band = max(stretch, 1.0) * band  # (the band: of the values)
+    s.redistance_band = band = stretch * band  # (the band: of the values, 3 h in distance)
     s._update_phase_fields()  # the same projection, then the particles re-distanced
     d = c.field("dist")
     near = np.abs(stretch * exact) < band
@@ -522,3 +527,21 @@ def test_particle_redistance_keeps_the_distance_fit(tmp_path, redistance):
         assert m["curvature_fallback_mean"] < 0.02
     else:
         assert m["curvature_fallback_mean"] > 0.5
+
+
+def test_closest_pairs_within_as_all_pairs():
+    """The bucketed closest segments: those of all pairs, for points near the segments."""
+    rng = np.random.default_rng(3)
+    th = np.linspace(0.0, 2.0 * np.pi, 41)
+    ring = np.stack([0.5 + 0.25 * np.cos(th), 0.5 + 0.25 * np.sin(th)], axis=1)
+    segs = np.stack([ring[:-1], ring[1:]], axis=1)
+    pts = rng.uniform(0.0, 1.0, (3000, 2))
+    pts = np.concatenate([pts, ring])  # end points: two equidistant segments each
+    near = np.abs(np.hypot(pts[:, 0] - 0.5, pts[:, 1] - 0.5) - 0.25) < 0.1
+    a = closest_pairs(pts[near], segs, 1e-12)
+    b = closest_pairs_within(pts[near], segs, 0.15, 1e-12)
+    assert len(a[0]) > len(pts[near])  # ties
+    assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+    # points with no segment within the radius: no pair
+    far = closest_pairs_within(np.array([[0.02, 0.02]]), segs, 0.05, 1e-12)
+    assert len(far[0]) == 0
