@@ -390,6 +390,14 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "particles' signed distance, shifted to keep the heavy volume (level_set), or "
             "from the fraction of each cell's particles in phase 1 (particles)",
         ),
+        "particle_redistance": Key(
+            boolean,
+            True,
+            doc="PFEM-2, surface tension: the particles' signed distance within 3 cells of the "
+            "interface is re-distanced each step (the distance to the circles the curvature "
+            "was fitted with); false: carried unchanged (the flow stretches it, and the "
+            "curvature falls back to the end-point fit)",
+        ),
         "explicit_pressure": Key(
             choice("consistent", "lagged"),
             "consistent",
@@ -543,6 +551,7 @@ FRAME_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
             "flow.mass_weighted",
             "flow.affine",
             "flow.density",
+            "flow.particle_redistance",
             "flow.extra_pass",
             "flow.pass_splits",
             "flow.predictor",

@@ -212,6 +212,7 @@ class FlowSection(Section):
     mass_weighted: bool
     affine: bool
     density: str
+    particle_redistance: bool
     explicit_pressure: str
     pressure_step: str
     correction: str

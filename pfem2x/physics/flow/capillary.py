@@ -38,9 +38,12 @@ straight line). The samples start as the distance to the region's boundary
 sampled below the mesh size (:func:`region_distance`), and the level set's
 re-distancing gives the nodes near the interface (not of cut cells) their
 distance to the fitted circles (:meth:`CapillaryForce.redistance`): a circle
-stays a circle, and the static drop stays at rest to round-off (docs/RESULTS.md).
+stays a circle, and the static drop stays at rest to round-off (docs/RESULTS.md);
+PFEM-2 re-distances its particles within 3 cells of the interface the same way
+(:meth:`CapillaryForce.redistance_samples`, ``flow.particle_redistance``), else the
+flow stretches their carried ``dist``.
 Where the fit is not trusted (its circle farther than ``h/2`` from the
-iso-line's end points around the segment; PFEM-2's carried ``dist`` stretched
+iso-line's end points around the segment; the samples' distance stretched
 by more than 5 %; fewer than six samples) the curvature is the end-point fit:
 a weighted least-squares circle of the same form through the end points of
 the segments within ``fit_radius`` cells (each moved to the root of a
@@ -83,6 +86,7 @@ from pfem2x.physics.flow.curvature import (
     circle_misfit,
     closest_mean,
     closest_pairs,
+    closest_pairs_within,
     distance_curvature,
     oriented_segments,
     refined_segments,
@@ -234,8 +238,8 @@ class CapillaryForce:
         Samples farther than ``1.5 h`` from the interface are not used.
     stretch_tolerance
         The distance fit is used where its :math:`|\lambda - 1|` is at most this (samples
-        that are still a signed distance; PFEM-2's ``dist`` is carried, never re-distanced,
-        and a flow stretches it: the rising bubble's :math:`\lambda` reached 6 by t = 2 at
+        that are still a signed distance; a flow stretches PFEM-2's carried ``dist`` where
+        it is not re-distanced: the rising bubble's :math:`\lambda` reached 6 by t = 2 at
         h = 1/40), and where its circle passes within ``h/2`` of the iso-line's end points
         around the segment; elsewhere the end-point fit (:func:`.segment_curvature`).
     """
@@ -254,6 +258,7 @@ class CapillaryForce:
         self.interface = interface
         self.samples = samples
         self._sample_band = 1.5 * float(h)
+        self._h = float(h)
         #: the distance fit is used where its circle passes within this distance of the
         #: iso-line's end points around the segment (:func:`.curvature.circle_misfit`)
         self.misfit_tolerance = 0.5 * float(h)
@@ -280,9 +285,11 @@ class CapillaryForce:
         self._sigma_c = compat.dolfinx.fem.Constant(mesh, compat.PETSc.ScalarType(self.sigma))
         #: smallest and largest segment curvature of the last update
         self.curvature_range = (0.0, 0.0)
-        #: segments whose curvature fell back to the end-point fit (no distance fit)
+        #: segments whose curvature fell back to the end-point fit (no distance fit), of all
         self.fallback_segments = 0
-        #: the last fit: all segments, their normals, (lambda, A, B, D) and its use
+        self.segment_count = 0
+        #: the last fit: all segments, their normals, (lambda, A, B, D) and whether its circle
+        #: passes the misfit test (whatever its lambda)
         self._circles: tuple[np.ndarray, ...] = (np.zeros((0, 2, 2)),) * 4
         self._kept = np.zeros(len(self._xy), dtype=bool)  # the nodes of the cut cells
 
@@ -296,19 +303,71 @@ class CapillaryForce:
         the distance to the P1 iso-line's chords (off by up to :math:`h^2\\kappa/8`):
         a circle stays a circle, and a cell the interface enters next has good samples.
         """
-        allsegs, normals, coef, ok = self._circles
-        if not len(allsegs):
+        if not len(self._circles[0]):
             return
         idx = np.flatnonzero(~self._kept & (np.abs(phi) < band))
-        pi, si = closest_pairs(self._xy[idx], allsegs, 1e-9 * self.radius)
-        good = ok[si]  # (tied segments: the mean of their circles' distances)
-        pi, si = pi[good], si[good]
-        d = np.abs(circle_distance(self._xy[idx[pi]], allsegs[si], normals[si], coef[si]))
-        cnt = np.bincount(pi, minlength=len(idx))
-        has = cnt > 0
-        dm = np.bincount(pi, weights=d, minlength=len(idx))[has] / cnt[has]
+        dm, has = self._fitted_distance(self._xy[idx], segments=False)
         idx = idx[has]
         phi[idx] = np.where(phi[idx] >= 0.0, 1.0, -1.0) * dm
+
+    def redistance_samples(self, points: np.ndarray, values: np.ndarray, band: float) -> int:
+        r"""Samples within ``band`` of the interface: their distance to it (in place; local).
+
+        After :meth:`update` (its fit): each sample ``values`` ``(p,)`` at ``points``
+        ``(p, 2)`` with :math:`|v| <` ``band`` gets the distance to the circle fitted to
+        its closest segment (:func:`.curvature.circle_distance`; equidistant segments: the
+        mean; whatever the fit's stretch :math:`\lambda`), or where that circle misses the
+        iso-line (:attr:`misfit_tolerance`) the distance to the segment itself (the
+        iso-line's end points on a quadratic per edge), with its own sign. PFEM-2's carried
+        ``dist`` is so kept a signed distance (:math:`\lambda = 1`) near the interface,
+        where the fit takes its samples; on a circle or a straight line the values do not
+        change (to round-off), nor the interface projected from them.
+
+        Returns
+        -------
+        The number of samples re-distanced.
+        """
+        if not len(self._circles[0]):
+            return 0
+        idx = np.flatnonzero(np.abs(values) < band)
+        # (the closest segment among those whose midpoint is within band + 2 h: a sample
+        # with none that near keeps its value)
+        dm, has = self._fitted_distance(points[idx], True, band + 2.0 * self._h)
+        idx = idx[has]
+        values[idx] = np.where(values[idx] >= 0.0, 1.0, -1.0) * dm
+        return len(idx)
+
+    def _fitted_distance(
+        self, pts: np.ndarray, segments: bool, near: float = 0.0
+    ) -> tuple[np.ndarray, ...]:
+        """Distance of ``pts`` to the last fit's circles of their closest segments.
+
+        ``segments``: where a closest segment's fit is not used, the distance to that
+        segment, and only segments whose midpoint is within ``near`` of the point count
+        (:func:`.curvature.closest_pairs_within`); else such pairs are left out (all
+        segments count). Returns the distances of the points that have one and which those
+        are (a mask).
+        """
+        allsegs, normals, coef, ok = self._circles
+        if segments:  # (tied segments: the mean of their distances)
+            pi, si = closest_pairs_within(pts, allsegs, near, 1e-9 * self.radius)
+            good = ok[si]
+            d = np.empty(len(pi))
+            q, s = pts[pi[good]], si[good]
+            d[good] = np.abs(circle_distance(q, allsegs[s], normals[s], coef[s]))
+            q, s = pts[pi[~good]], si[~good]
+            a, ab = allsegs[s, 0], allsegs[s, 1] - allsegs[s, 0]
+            ab2 = np.maximum(np.einsum("kj,kj->k", ab, ab), 1e-300)
+            t = np.clip(np.einsum("kj,kj->k", q - a, ab) / ab2, 0.0, 1.0)
+            d[~good] = np.linalg.norm(q - a - t[:, None] * ab, axis=1)
+        else:
+            pi, si = closest_pairs(pts, allsegs, 1e-9 * self.radius)
+            good = ok[si]  # (tied segments: the mean of their circles' distances)
+            pi, si = pi[good], si[good]
+            d = np.abs(circle_distance(pts[pi], allsegs[si], normals[si], coef[si]))
+        cnt = np.bincount(pi, minlength=len(pts))
+        has = cnt > 0
+        return np.bincount(pi, weights=d, minlength=len(pts))[has] / cnt[has], has
 
     def force(self, H_w: Any) -> Any:
         """The UFL force :math:`f_h` with the frame's phase weight ``H_w``."""
@@ -387,10 +446,12 @@ class CapillaryForce:
         # the fitted circle must pass through the iso-line's end points around the segment
         self.misfit = circle_misfit(allsegs, normals, coef, allsegs.reshape(-1, 2), self.radius)
         ok &= self.misfit <= self.misfit_tolerance
-        # and the samples must be a signed distance (PFEM-2's dist is carried, not re-distanced)
+        # (the circles of the re-distancing: a stretched distance still fits the shape)
+        self._circles = (allsegs, normals, coef, ok.copy())
+        # and the samples must be a signed distance (PFEM-2's carried dist: see the tolerance)
         ok &= np.abs(coef[:, 0] - 1.0) <= self.stretch_tolerance
-        self._circles = (allsegs, normals, coef, ok)
         self.fallback_segments = int(np.count_nonzero(~ok))
+        self.segment_count = len(ok)
         if not ok.all():
             kap[~ok] = segment_curvature(allsegs[~ok], self.radius, normals[~ok])
         return segs, cells, allsegs, smooth_along(allsegs, kap, self.radius)

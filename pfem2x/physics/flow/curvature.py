@@ -24,6 +24,7 @@ __all__ = [
     "circle_misfit",
     "closest_mean",
     "closest_pairs",
+    "closest_pairs_within",
     "closest_segment",
     "distance_curvature",
     "oriented_segments",
@@ -501,6 +502,33 @@ def closest_pairs(
     return np.concatenate(pi or [np.zeros(0, np.int64)]), np.concatenate(
         si or [np.zeros(0, np.int64)]
     )
+
+
+def closest_pairs_within(
+    points: np.ndarray, segs: np.ndarray, radius: float, tol: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`closest_pairs` among the segments whose midpoint is within ``radius`` of a point.
+
+    The same pairs as :func:`closest_pairs` for every point whose closest segment's
+    midpoint is within ``radius`` (buckets of side ``radius``: about ``m`` times the
+    points near each segment, not all pairs); a point with no segment that near has none.
+    """
+    if len(points) == 0 or len(segs) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    pi, si = _pairs_within(points, segs.mean(axis=1), radius)
+    a = segs[si, 0]
+    ab = segs[si, 1] - a
+    ab2 = np.maximum(np.einsum("kj,kj->k", ab, ab), 1e-300)
+    ap = points[pi] - a
+    t = np.clip(np.einsum("kj,kj->k", ap, ab) / ab2, 0.0, 1.0)
+    d = ap - t[:, None] * ab
+    dist = np.sqrt(np.einsum("kj,kj->k", d, d))
+    best = np.full(len(points), np.inf)
+    np.minimum.at(best, pi, dist)
+    keep = dist <= best[pi] + tol
+    pi, si = pi[keep], si[keep]
+    order = np.lexsort((si, pi))  # (sorted as closest_pairs returns them)
+    return pi[order], si[order]
 
 
 def closest_mean(

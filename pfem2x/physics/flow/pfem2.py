@@ -385,7 +385,7 @@ class LagrangianFlow(TwoPasses, ParticleCapillary, ParticleTransfers, FlowSolver
                     self.jump.update(self.dist.x.array)
                 self.frac[:] = self._particle_fraction()
             if self.capillary is not None:
-                self.capillary.update(self.dist.x.array, self.cell_vol)
+                self._update_capillary()
         (_, r2, m2, _) = pr.phases[1] if pr.two_phase else pr.phases[0]
         f = self.frac
         self.rho.x.array[self._cell_dofs] = r2 + (r1 - r2) * f

@@ -305,6 +305,9 @@ class FlowSolver(Solver):
             d["tip_falling"], d["tip_rising"] = self.tips()
         if self.capillary is not None:  # the step against the explicit capillary limit
             d["capillary_dt_ratio"] = self.dt_last / self.capillary_dt_limit()
+            # the share of the segments whose curvature is not the distance fit's
+            cap = self.capillary
+            d["curvature_fallback"] = cap.fallback_segments / max(cap.segment_count, 1)
         if self.exact is not None:
             d.update(self.exact.diagnostics(u, self.p.x.array, t))
         d.update(self.case.diagnostics(self, t))
@@ -338,6 +341,9 @@ class FlowSolver(Solver):
             lim = self.capillary_dt_limit()
             out["capillary_dt_limit"] = lim
             out["capillary_dt_ratio_max"] = max(h.get("capillary_dt_ratio", 0.0) for h in history)
+            fb = [h.get("curvature_fallback", 0.0) for h in history]
+            out["curvature_fallback_mean"] = float(np.mean(fb))
+            out["curvature_fallback_max"] = max(fb)
         out["tau_factor"] = self.problem.time_factor
         out.update(ExactFlowError.metrics(history))
         out.update(self.case.metrics(history))
