@@ -80,6 +80,10 @@ def _abort(item, rep, waited: float) -> None:
     finally:
         sys.stderr.write("\n".join(lines) + "\n")
         sys.stderr.flush()
+        # the launcher forwards a rank's output through a pipe; MPICH's hydra killed the
+        # ranks on MPI_Abort before it had forwarded these lines (the run's output ended
+        # without them, now and then): give it a moment
+        time.sleep(1.0)
         MPI.COMM_WORLD.Abort(1)
 
 
