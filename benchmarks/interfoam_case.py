@@ -158,7 +158,11 @@ def write_case(case: Path, spec: CaseSpec, pb: Problem | None = None) -> None:
         )
         control = "adjustableRunTime"
     else:
-        step = f"deltaT {spec.dt:g};\nadjustTimeStep no;\nwriteControl runTime;\n"
+        # interFoam reads maxCo and maxAlphaCo whether the step adapts or not
+        step = (
+            f"deltaT {spec.dt:g};\nadjustTimeStep no;\nmaxCo 1e6;\nmaxAlphaCo 1e6;\n"
+            "writeControl runTime;\n"
+        )
         control = "runTime"
     _foam_file(case / "system/controlDict", "dictionary", "controlDict", f"""
 application interFoam;
