@@ -353,6 +353,14 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "u^n + dt du/dt and a^n + dt da/dt of the last step (the first step: euler), "
             "euler = along u^n with the source a^n (theta = 0, the paper)",
         ),
+        "viscous_step": Key(
+            choice("sdirk2", "euler"),
+            "sdirk2",
+            doc="PFEM-2, extra_pass: the viscous predictor of the theta = 1/2 passes; sdirk2 = "
+            "the two-stage L-stable SDIRK method (second order in dt, 2 solves with one "
+            "matrix), euler = backward Euler (first order); the theta = 0 pass, one pass "
+            "and surface tension: backward Euler",
+        ),
         "pic_fraction": Key(
             number(0.0, 1.0),
             0.0,
@@ -555,6 +563,7 @@ FRAME_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
             "flow.extra_pass",
             "flow.pass_splits",
             "flow.predictor",
+            "flow.viscous_step",
             "flow.explicit_pressure",
         ),
     },

@@ -40,7 +40,12 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["TwoPasses"]
+from pfem2x import compat
+
+__all__ = ["SDIRK_GAMMA", "TwoPasses"]
+
+#: the stage coefficient of the two-stage L-stable SDIRK method, 1 - 1/sqrt(2)
+SDIRK_GAMMA = 1.0 - 0.5 * np.sqrt(2.0)
 
 
 class TwoPasses:
@@ -56,6 +61,10 @@ class TwoPasses:
     dt_last: float
     step_count: int
     pass_splits: int
+    #: the viscous predictor of the current pass by the two-stage SDIRK (else backward Euler)
+    _viscous_l_stable: bool = False
+    #: flow.viscous_step = "sdirk2"
+    viscous_sdirk: bool
 
     def _blends(self) -> bool:
         """Whether the passes blend the source in time (the full source along the path)."""
@@ -65,6 +74,8 @@ class TwoPasses:
         """Steps 1–4 twice from the start-of-step particles (see the module docstring)."""
         c = self.cloud_
         blends = self._blends()
+        # the theta = 1/2 passes' viscous predictor of second order (flow.viscous_step)
+        sdirk = blends and self.viscous_sdirk and self.viscous and self.capillary is None
         with self.timer("particles"):
             saved = c.extract()
             guess = self._end_estimate(dt) if blends else None
@@ -77,7 +88,9 @@ class TwoPasses:
             self._pass(dt, 0.0)
         else:
             self.u.x.array[:] = guess[0]
+            self._viscous_l_stable = sdirk
             self._pass(dt, 0.5, (force_old, guess[1], 1))
+        self._viscous_l_stable = sdirk
         # second pass from the start-of-step state, theta = 1/2 in eq. 2.10
         with self.timer("particles"):
             c.remove(np.ones(c.n, dtype=bool))
@@ -89,6 +102,23 @@ class TwoPasses:
         else:
             self.force.x.array[:] = 0.5 * (self.force.x.array + force_old)
             self._pass(dt, 0.5)
+        self._viscous_l_stable = False
+
+    def _viscous_sdirk2(self, dt: float) -> None:
+        g = SDIRK_GAMMA
+        proj = self.projection
+        with self.timer("solve"):
+            it = self.m_solver.solve(self.b_m, compat.petsc_vec(self.u_star))
+            self.u_star.x.scatter_forward()
+        n = len(self.b_m.array_r)
+        c = (1.0 - g) / g
+        r2 = (1.0 - c) * self.u_hat.x.array[:n] + c * self.u_star.x.array[:n]
+        self.b_m.array[:] = self._diag.array_r * r2
+        compat.set_bc(self.b_m, self._bcs_u)
+        with self.timer("solve"):
+            it += self.m_solver.solve(self.b_m, compat.petsc_vec(self.u_star))
+            self.u_star.x.scatter_forward()
+        proj.iterations["momentum"] = it
 
     def _end_estimate(self, dt: float) -> tuple[np.ndarray, np.ndarray] | None:
         """``flow.predictor = "extrapolated"``: ``u^n + dt du/dt`` and ``a^n + dt da/dt``.

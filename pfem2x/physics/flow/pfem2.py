@@ -164,7 +164,7 @@ from pfem2x.compat import MPI, PETSc
 from pfem2x.mesh import Domain
 from pfem2x.physics.flow.balanced import JumpForce
 from pfem2x.physics.flow.interface import positive_fraction
-from pfem2x.physics.flow.passes import TwoPasses
+from pfem2x.physics.flow.passes import SDIRK_GAMMA, TwoPasses
 from pfem2x.physics.flow.pfem2_capillary import ParticleCapillary
 from pfem2x.physics.flow.problem import FlowSolver
 from pfem2x.physics.flow.projection import PressureProjection
@@ -210,6 +210,8 @@ class LagrangianFlow(TwoPasses, ParticleCapillary, ParticleTransfers, FlowSolver
         self.extra_pass = bool(fl.extra_pass)
         #: the passes' moves in this many time-blended parts (flow.pass_splits, .passes)
         self.pass_splits = int(fl.pass_splits)
+        #: the theta = 1/2 passes' viscous predictor by the two-stage SDIRK (flow.viscous_step)
+        self.viscous_sdirk = fl.viscous_step == "sdirk2"
         #: the explicit source's pressure solved from u^n each step (flow.explicit_pressure)
         self.consistent_pressure = not self.gravity_only and fl.explicit_pressure == "consistent"
         #: the source integrated along the path (False: its end points; for measurements)
@@ -514,8 +516,10 @@ class LagrangianFlow(TwoPasses, ParticleCapillary, ParticleTransfers, FlowSolver
         with self.timer("assembly"):
             proj.assemble_mass()
             if self.viscous:
-                self._viscous_operator(dt)
-        if self.viscous:
+                self._viscous_operator(SDIRK_GAMMA * dt if self._viscous_l_stable else dt)
+        if self.viscous and self._viscous_l_stable:
+            self._viscous_sdirk2(dt)
+        elif self.viscous:
             with self.timer("solve"):
                 proj.iterations["momentum"] = self.m_solver.solve(
                     self.b_m, compat.petsc_vec(self.u_star)
