@@ -356,10 +356,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "viscous_step": Key(
             choice("sdirk2", "euler"),
             "sdirk2",
-            doc="PFEM-2, extra_pass: the viscous predictor of the theta = 1/2 passes; sdirk2 = "
-            "the two-stage L-stable SDIRK method (second order in dt, 2 solves with one "
-            "matrix), euler = backward Euler (first order); the theta = 0 pass, one pass "
-            "and surface tension: backward Euler",
+            doc="PFEM-2, extra_pass: the second (theta = 1/2) pass's viscous predictor; "
+            "sdirk2 = the two-stage L-stable SDIRK method (second order in dt, 2 solves "
+            "with one matrix), euler = backward Euler (first order); the first pass, one "
+            "pass, pressure_step = total, light_source = gravity and surface tension: "
+            "backward Euler",
         ),
         "pic_fraction": Key(
             number(0.0, 1.0),
