@@ -25,8 +25,9 @@ estimate of second order instead of first; the first step, without a last step,
 runs the :math:`\theta = 0` pass. Rayleigh–Taylor 100 × 400 at Courant 8, largest
 tip difference to the Courant 0.5 run up to :math:`\tau = 2.5`: 0.029 d with
 ``"euler"`` and :math:`m = 1`, 0.013 d with ``"extrapolated"`` and :math:`m = 2`,
-0.0096 d with :math:`m = 4` (the defaults; 17 % more CPU time than the first)
-(docs/RESULTS.md, "Where PFEM-2's Δt error comes from").
+0.0096 d with :math:`m = 4` (17 % more CPU time than the first), all three with
+backward Euler in the second pass; 0.0108 d with the defaults (the SDIRK predictor
+below) (docs/RESULTS.md, "Where PFEM-2's Δt error comes from").
 
 The second pass's viscous predictor (``flow.viscous_step = "sdirk2"``) is the two-stage
 L-stable SDIRK method (:meth:`TwoPasses._viscous_sdirk2`), second order in
@@ -36,6 +37,7 @@ Courant 8 the final velocity error is 0.0037 against 0.0081 with backward Euler
 (Courant 0.5: 0.0028), 16 × 16 0.0068 against 0.0110 (Courant 0.5: 0.0134); the first
 pass only estimates the end of the step and keeps backward Euler (SDIRK there too:
 the same on Taylor–Green, Rayleigh–Taylor 50 × 200 0.001 d further from Courant 0.5).
+Rayleigh–Taylor (:math:`\nu = 10^{-3}`) moves by at most 0.003 d.
 Not with surface tension (the predictor's operator then has the capillary
 term of :math:`\Delta t`): backward Euler (docs/RESULTS.md, "Where PFEM-2's Δt
 error comes from").
