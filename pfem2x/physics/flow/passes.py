@@ -42,7 +42,8 @@ Not with surface tension (the predictor's operator then has the capillary
 term of :math:`\Delta t`): backward Euler (docs/RESULTS.md, "Where PFEM-2's Δt
 error comes from").
 
-Both apply with the source integrated along the path and the full source
+The blends, the extrapolation and the SDIRK predictor apply with the source integrated
+along the path and the full source
 (``flow.pressure_step = "increment"``, ``flow.light_source = "full"``); otherwise
 the second pass is the streamline of :math:`\tfrac12(u^n + u^{(1)})` after an
 Euler first pass, as in the paper.
@@ -110,12 +111,14 @@ class TwoPasses:
             names = c.field_names
             c.append(saved["__x"], saved["__c"], {k: saved[k] for k in names})
             self.p.x.array[:] = p_old
-        if blends:
-            self._pass(dt, 0.5, (force_old, self.force.x.array.copy(), self.pass_splits))
-        else:
-            self.force.x.array[:] = 0.5 * (self.force.x.array + force_old)
-            self._pass(dt, 0.5)
-        self._viscous_l_stable = False
+        try:
+            if blends:
+                self._pass(dt, 0.5, (force_old, self.force.x.array.copy(), self.pass_splits))
+            else:
+                self.force.x.array[:] = 0.5 * (self.force.x.array + force_old)
+                self._pass(dt, 0.5)
+        finally:
+            self._viscous_l_stable = False
 
     def _viscous_sdirk2(self, dt: float) -> None:
         r"""The viscous predictor of a :math:`\theta = 1/2` pass: two-stage L-stable SDIRK.
