@@ -353,6 +353,15 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "u^n + dt du/dt and a^n + dt da/dt of the last step (the first step: euler), "
             "euler = along u^n with the source a^n (theta = 0, the paper)",
         ),
+        "viscous_step": Key(
+            choice("sdirk2", "euler"),
+            "sdirk2",
+            doc="PFEM-2, extra_pass: the second (theta = 1/2) pass's viscous predictor; "
+            "sdirk2 = the two-stage L-stable SDIRK method (second order in dt, 2 solves "
+            "with one matrix), euler = backward Euler (first order); the first pass, one "
+            "pass, pressure_step = total, light_source = gravity and surface tension: "
+            "backward Euler",
+        ),
         "pic_fraction": Key(
             number(0.0, 1.0),
             0.0,
@@ -555,6 +564,7 @@ FRAME_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
             "flow.extra_pass",
             "flow.pass_splits",
             "flow.predictor",
+            "flow.viscous_step",
             "flow.explicit_pressure",
         ),
     },

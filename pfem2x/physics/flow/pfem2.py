@@ -91,14 +91,16 @@ the particles get no explicit source.
 particles with :math:`\theta = 1/2` in eq. 2.10 — step 6 of the paper: the
 particles follow the velocity and source blended linearly in time from the start
 of the step to the first pass's end (``flow.pass_splits``), the first pass being
-:math:`\theta = 0` or extrapolated from the last step (``flow.predictor``):
-:mod:`pfem2x.physics.flow.passes`.
+:math:`\theta = 0` or extrapolated from the last step (``flow.predictor``), the
+second pass's viscous predictor second order in :math:`\Delta t`
+(``flow.viscous_step``): :mod:`pfem2x.physics.flow.passes`.
 
 Operators per step (``fem.COUNTERS``): 1 matrix assembly (pressure; +1 for
 the viscous matrix when the phases' viscosities differ), 4 vector
 assemblies (lumped mass, pressure right-hand side, correction, source
 :math:`a`), 2 solves (viscous predictor, pressure; 1 without viscosity);
-twice that with ``flow.extra_pass``; once per step +2 vectors (right-hand
+twice that with ``flow.extra_pass`` (+1 solve: the second pass's two-stage
+viscous predictor); once per step +2 vectors (right-hand
 side, source :math:`a`) and +1 solve for the consistent pressure; +1 vector
 (the heavy phase's source) with ``flow.light_source = "gravity"``.
 Large density ratios (dam break, 1000): ``flow.pressure_step = "total"``,
@@ -131,6 +133,7 @@ key                                 effect in this frame
 ``flow.extra_pass``                 step 6 of the paper (second pass, :math:`\theta = 1/2`)
 ``flow.pass_splits``                the second pass's move in time-blended parts (:mod:`.passes`)
 ``flow.predictor``                  the first pass: ``extrapolated`` or ``euler``
+``flow.viscous_step``               the second pass's viscous predictor: ``sdirk2`` or ``euler``
 ``flow.pic_fraction``               step 4 blend towards the mesh velocity (0: FLIP)
 ``flow.pic_fraction_light``         the same for the light phase (two phases)
 ``flow.light_source``               ``full`` or ``gravity`` (see :meth:`LagrangianFlow._kick`)
@@ -164,7 +167,7 @@ from pfem2x.compat import MPI, PETSc
 from pfem2x.mesh import Domain
 from pfem2x.physics.flow.balanced import JumpForce
 from pfem2x.physics.flow.interface import positive_fraction
-from pfem2x.physics.flow.passes import TwoPasses
+from pfem2x.physics.flow.passes import SDIRK_GAMMA, TwoPasses
 from pfem2x.physics.flow.pfem2_capillary import ParticleCapillary
 from pfem2x.physics.flow.problem import FlowSolver
 from pfem2x.physics.flow.projection import PressureProjection
@@ -210,6 +213,8 @@ class LagrangianFlow(TwoPasses, ParticleCapillary, ParticleTransfers, FlowSolver
         self.extra_pass = bool(fl.extra_pass)
         #: the passes' moves in this many time-blended parts (flow.pass_splits, .passes)
         self.pass_splits = int(fl.pass_splits)
+        #: the second pass's viscous predictor by the two-stage SDIRK (flow.viscous_step)
+        self.viscous_sdirk = fl.viscous_step == "sdirk2"
         #: the explicit source's pressure solved from u^n each step (flow.explicit_pressure)
         self.consistent_pressure = not self.gravity_only and fl.explicit_pressure == "consistent"
         #: the source integrated along the path (False: its end points; for measurements)
@@ -514,8 +519,10 @@ class LagrangianFlow(TwoPasses, ParticleCapillary, ParticleTransfers, FlowSolver
         with self.timer("assembly"):
             proj.assemble_mass()
             if self.viscous:
-                self._viscous_operator(dt)
-        if self.viscous:
+                self._viscous_operator(SDIRK_GAMMA * dt if self._viscous_l_stable else dt)
+        if self.viscous and self._viscous_l_stable:
+            self._viscous_sdirk2(dt)
+        elif self.viscous:
             with self.timer("solve"):
                 proj.iterations["momentum"] = self.m_solver.solve(
                     self.b_m, compat.petsc_vec(self.u_star)
