@@ -131,8 +131,9 @@ class EulerianFlow(FlowSolver):
         self.capillary: CapillaryForce | None = None
         if pr.two_phase and pr.surface_tension > 0.0:
             self.capillary = CapillaryForce(
-                self.Q, self.interface, pr.surface_tension, self.eps + 2.0 * self.H, self.H
-            )
+                self.Q, self.interface, pr.surface_tension, self.eps + 2.0 * self.H, self.H,
+                damping=scene.flow.capillary_damping,
+            )  # fmt: skip
             self.capillary.update(self.phi.x.array, self.cell_vol)
             fc = self.capillary.force(H)
             fg = fc if fg is None else fg + fc
