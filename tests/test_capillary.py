@@ -431,14 +431,16 @@ def test_static_drop_ranks_agree(shared_tmp, frame):
 
 
 @pytest.mark.mpi
+@pytest.mark.parametrize("damping", ["surface", "normal"])
 @pytest.mark.parametrize("frame", ["eulerian", "lagrangian"])
-def test_capillary_increment_ranks_agree(shared_tmp, frame):
+def test_capillary_increment_ranks_agree(shared_tmp, frame, damping):
     """``flow.capillary_increment`` on the world communicator matches serial runs.
 
     Rising bubble 20 x 40, 5 steps of 0.04, solves to ``flow.rtol = 1e-12``. PFEM-2,
     relative differences of the rise velocity / centroid: 4e-13 / 8e-15 on DOLFINx
     0.5.2 (hypre; at the default rtol 1e-8, 1.5e-5 / 1.6e-7), up to 8e-6 / 6e-8 on
-    0.11 (GAMG, whose aggregation follows the partition).
+    0.11 (GAMG, whose aggregation follows the partition). ``flow.capillary_damping =
+    "normal"``: its normal :math:`n_h` from the nodal gradient summed over the ranks.
     """
     comm = MPI.COMM_WORLD
     sc = load_scene(
@@ -448,12 +450,14 @@ def test_capillary_increment_ranks_agree(shared_tmp, frame):
             "time.t_end=0.2",
             f'method.frame="{frame}"',
             "flow.capillary_increment=true",
+            f'flow.capillary_damping="{damping}"',
             "flow.rtol=1e-12",
         ],
     )
-    ra = Simulation(sc, shared_tmp / f"inc-world-{frame}", comm=comm, quiet=True).run()
+    tag = f"{frame}-{damping}"
+    ra = Simulation(sc, shared_tmp / f"inc-world-{tag}", comm=comm, quiet=True).run()
     rb = Simulation(
-        sc, shared_tmp / f"inc-self-{frame}-{comm.rank}", comm=MPI.COMM_SELF, quiet=True
+        sc, shared_tmp / f"inc-self-{tag}-{comm.rank}", comm=MPI.COMM_SELF, quiet=True
     ).run()
     assert ra.status == rb.status == "ok"
     for ha, hb in zip(ra.history[1:], rb.history[1:], strict=True):
