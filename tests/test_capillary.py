@@ -385,6 +385,7 @@ dt = 0.05
         (['flow.surface_tension="1e400"'], "flow.surface_tension"),
         (['flow.surface_tension="2*sigma/0"'], "flow.surface_tension"),
         (['flow.surface_tension="x"'], "flow.surface_tension"),
+        (['flow.capillary_damping="tangent"'], "flow.capillary_damping"),
         ("one-phase", "effects.surface_tension"),
     ],
 )
