@@ -569,18 +569,18 @@ def damping_energy(s, field):
 
 @pytest.mark.parametrize("frame", ["eulerian", "lagrangian"])
 def test_capillary_damping_normal(frame):
-    r"""``flow.capillary_damping = "normal"`` damps the normal velocity only (static drop 40 x 40).
+    r"""``flow.capillary_damping = "normal"`` damps the normal velocity only (static drop 20 x 20).
 
     On the circle R = 0.25 (over :math:`\sigma`): a rigid rotation (flow along the
     interface) gives :math:`\int|\partial_s u|^2 = 2\pi R` with the whole velocity and
     nothing with its normal component; the straining flow :math:`(x, -y)` gives
     :math:`2\pi R` and :math:`\int(\partial_s(R\cos 2\theta))^2 = 4\pi R`. Measured, level
-    set / PFEM-2: rotation 1.570 / 1.569 and 2.0e-3 / 2.1e-3, strain 1.570 / 1.569 and
-    3.142 / 3.137.
+    set / PFEM-2: rotation 1.568 / 1.563 and 8.3e-3 / 9.1e-3, strain 1.568 / 1.563 and
+    3.108 / 3.076 (40 x 40: 2.0e-3 / 2.1e-3 and 3.142 / 3.137).
     """
     f = f'method.frame="{frame}"'
-    surface = solver_for("static-drop", f, "mesh.cells=[40, 40]")
-    normal = solver_for("static-drop", f, "mesh.cells=[40, 40]", 'flow.capillary_damping="normal"')
+    surface = solver_for("static-drop", f)
+    normal = solver_for("static-drop", f, 'flow.capillary_damping="normal"')
     assert surface.capillary.normal is None and normal.capillary.normal is not None
     c = 0.5
 
@@ -592,8 +592,8 @@ def test_capillary_damping_normal(frame):
 
     two_pi_r = 2.0 * np.pi * 0.25
     for s, rot, stretch in ((surface, 1.0, 1.0), (normal, 0.0, 2.0)):
-        assert damping_energy(s, rotation) == pytest.approx(rot * two_pi_r, abs=0.01)
-        assert damping_energy(s, strain) == pytest.approx(stretch * two_pi_r, rel=0.02)
+        assert damping_energy(s, rotation) == pytest.approx(rot * two_pi_r, abs=0.03)
+        assert damping_energy(s, strain) == pytest.approx(stretch * two_pi_r, rel=0.04)
 
 
 @pytest.mark.parametrize("frame", ["eulerian", "lagrangian"])
