@@ -446,6 +446,14 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "stable at steps far above the explicit capillary limit (the flow's O(dt) error "
             "grows)",
         ),
+        "capillary_damping": Key(
+            choice("surface", "normal"),
+            "surface",
+            doc="surface tension, the implicit Laplace-Beltrami term dt sigma int_Gamma "
+            "grad_G u : grad_G v: surface = of the whole velocity; normal = of its normal "
+            "component u.n only (the interface moves normally; tangential flow along it is "
+            "not damped)",
+        ),
         "rtol": Key(number(0.0, 1.0, lo_open=True), 1e-8, doc="linear solver tolerance"),
         "quadrature_degree": Key(integer(1, 20), 4, doc="quadrature degree of the flow forms"),
     },
@@ -513,6 +521,7 @@ FLOW_COMMON_KEYS = (
     *(f"flow.{k}" for k in ("max_speed", "pressure_step", "correction", "rtol")),
     "flow.surface_tension",
     "flow.capillary_increment",
+    "flow.capillary_damping",
 )
 _PARTICLES = (
     "method.particles_per_cell",

@@ -219,6 +219,7 @@ class FlowSection(Section):
     correction: str
     surface_tension: ExprText
     capillary_increment: bool
+    capillary_damping: str
     rtol: float
     quadrature_degree: int
 

@@ -69,6 +69,20 @@ UFL form with the DG0 tensor :math:`T_K = |s_K|/|K|\;t_K\otimes t_K`. It
 vanishes for a fluid at rest and damps the capillary waves that bind the
 explicit step :math:`\Delta t < \sqrt{\bar\rho h^3/(2\pi\sigma)}`
 (Brackbill et al. 1992, :math:`\bar\rho` the mean density).
+
+``flow.capillary_damping = "normal"``: the same term of the normal velocity
+:math:`u\cdot n_h` only,
+
+.. math::
+    \Delta t\,\sigma\int_\Gamma \partial_s(u\cdot n_h)\,\partial_s(v\cdot n_h)\,ds
+    = \Delta t\,\sigma\sum_{K\ \mathrm{cut}} |s_K|\,
+    \big(t_K\cdot\nabla(u\cdot n_h)\big)\big(t_K\cdot\nabla(v\cdot n_h)\big),
+
+:math:`n_h` the P1 unit normal of the recovered nodal gradient of the interface
+function. The interface moves with its normal velocity; a flow along it
+(the rising bubble's circulation) only re-parametrises it, and the whole-velocity
+term damps it as a surface viscosity :math:`\Delta t\,\sigma` (docs/RESULTS.md,
+"Rising bubble at large steps").
 """
 
 from __future__ import annotations
@@ -242,6 +256,10 @@ class CapillaryForce:
         it is not re-distanced: the rising bubble's :math:`\lambda` reached 6 by t = 2 at
         h = 1/40), and where its circle passes within ``h/2`` of the iso-line's end points
         around the segment; elsewhere the end-point fit (:func:`.segment_curvature`).
+    damping
+        The implicit term (``flow.capillary_damping``): ``"surface"``, of the whole
+        velocity; ``"normal"``, of the normal velocity :math:`u\cdot n_h` only (module
+        docstring).
     """
 
     def __init__(
@@ -254,6 +272,7 @@ class CapillaryForce:
         fit_radius: float = 3.0,
         samples: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None,
         stretch_tolerance: float = np.inf,
+        damping: str = "surface",
     ):
         self.interface = interface
         self.samples = samples
@@ -282,6 +301,14 @@ class CapillaryForce:
         W = compat.function_space(mesh, 0, (2,), family="DG")
         self.w = compat.dolfinx.fem.Function(W, name="w_lb")
         self._wdofs = compat.dofmap_array(W)[: interface.n_owned, 0]
+        if damping not in ("surface", "normal"):
+            raise ValueError(f"damping must be 'surface' or 'normal', not {damping!r}")
+        #: the P1 unit normal n_h of the implicit term's normal velocity (damping = "normal")
+        self.normal: Any = None
+        if damping == "normal":
+            self.normal = compat.dolfinx.fem.Function(
+                compat.function_space(mesh, 1, (2,)), name="n_h"
+            )
         self._sigma_c = compat.dolfinx.fem.Constant(mesh, compat.PETSc.ScalarType(self.sigma))
         #: smallest and largest segment curvature of the last update
         self.curvature_range = (0.0, 0.0)
@@ -375,8 +402,13 @@ class CapillaryForce:
 
     def implicit_form(self, u: Any, v: Any, dt: Any) -> Any:
         r"""The UFL integrand of the implicit term (times ``dx``: :math:`\Delta t\,\sigma
-        \int_\Gamma\nabla_\Gamma u:\nabla_\Gamma v`)."""
+        \int_\Gamma\nabla_\Gamma u:\nabla_\Gamma v`, or of :math:`u\cdot n_h`,
+        :math:`v\cdot n_h` with ``damping = "normal"``)."""
         w = self.w
+        if self.normal is not None:  # the normal velocity's tangential derivative only
+            n = self.normal
+            du, dv = ufl.grad(ufl.dot(u, n)), ufl.grad(ufl.dot(v, n))
+            return dt * self._sigma_c * ufl.dot(du, w) * ufl.dot(dv, w)
         return dt * self._sigma_c * ufl.dot(ufl.dot(ufl.grad(u), w), ufl.dot(ufl.grad(v), w))
 
     def _nodal_gradient(self, vals: np.ndarray, cell_vol: np.ndarray) -> np.ndarray:
@@ -468,6 +500,10 @@ class CapillaryForce:
         kept = self._marked_nodes((allv.min(axis=1) < 0.0) & (allv.max(axis=1) > 0.0))
         self._kept = kept
         segs, cells, allsegs, kap_all = self._segment_curvature(phi, cell_vol, kept)
+        if self.normal is not None:  # (the nodal gradient the curvature fit just recovered)
+            g = self._grad.x.array.reshape(-1, 3)[:, :2]
+            gn = np.linalg.norm(g, axis=1)
+            self.normal.x.array[:] = (g / np.maximum(gn, 1e-300)[:, None]).ravel()
         # the band: nodes of cells with a sign change (phi >= 0 or not) and nodes within `band`
         hpos = phi >= 0.0
         hc = hpos[itf.dofmap]

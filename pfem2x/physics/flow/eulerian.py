@@ -45,6 +45,8 @@ key                            effect in this frame
 ``flow.reinit_every``          re-distancing every N steps (0: never)
 ``flow.volume_correction``     after re-distancing: shift phi to the initial volume
 ``flow.surface_tension``       surface tension (:mod:`pfem2x.physics.flow.capillary`)
+``flow.capillary_increment``   surface tension: the forces' increment through the predictor
+``flow.capillary_damping``     surface tension: the implicit term of the whole or normal velocity
 ``flow.pressure_step``         ``increment``: :math:`-\nabla p^n` in the predictor; ``total``
 ``flow.correction``            ``velocity`` (:math:`M^{-1}\rho^{-1}`) or ``momentum``
 ``flow.rtol``                  tolerance of every linear solve
@@ -131,8 +133,9 @@ class EulerianFlow(FlowSolver):
         self.capillary: CapillaryForce | None = None
         if pr.two_phase and pr.surface_tension > 0.0:
             self.capillary = CapillaryForce(
-                self.Q, self.interface, pr.surface_tension, self.eps + 2.0 * self.H, self.H
-            )
+                self.Q, self.interface, pr.surface_tension, self.eps + 2.0 * self.H, self.H,
+                damping=scene.flow.capillary_damping,
+            )  # fmt: skip
             self.capillary.update(self.phi.x.array, self.cell_vol)
             fc = self.capillary.force(H)
             fg = fc if fg is None else fg + fc

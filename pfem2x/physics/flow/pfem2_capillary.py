@@ -55,6 +55,7 @@ class ParticleCapillary:
             self.H,
             samples=lambda: (self.cloud_.x, self.cloud_.field("dist")),
             stretch_tolerance=0.1 if redistance else 0.05,
+            damping=self.scene.flow.capillary_damping,
         )
         if redistance:
             self.redistance_band = 3.0 * self.H
