@@ -142,6 +142,9 @@ key                                 effect in this frame
 ``flow.affine``                     step 2/4: APIC (particles carry the PIC share of grad u)
 ``flow.rtol``                       tolerance of every linear solve
 ``flow.surface_tension``            capillary force on ``dist`` (:mod:`.capillary`)
+``flow.capillary_increment``        the force's increment through the momentum operator
+``flow.capillary_damping``          implicit term on the whole or the normal velocity
+``flow.particle_redistance``        ``dist`` near the interface to the fitted circles
 ==================================  =====================================================
 
 Ignored here: ``method.theta``, ``method.supg``, ``flow.interface_width``,
