@@ -215,6 +215,7 @@ class FlowSection(Section):
     density: str
     particle_redistance: bool
     explicit_pressure: str
+    pass_pressure: str
     pressure_step: str
     correction: str
     surface_tension: ExprText

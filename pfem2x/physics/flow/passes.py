@@ -80,6 +80,9 @@ class TwoPasses:
     _viscous_l_stable: bool = False
     #: flow.viscous_step = "sdirk2"
     viscous_sdirk: bool
+    #: flow.pass_pressure = "consistent": the second pass's end source from the pressure
+    #: solved from the first pass's velocity (:meth:`LagrangianFlow._consistent_pressure`)
+    consistent_end_source: bool
 
     def _blends(self) -> bool:
         """Whether the passes blend the source in time (the full source along the path)."""
@@ -104,6 +107,8 @@ class TwoPasses:
         else:
             self.u.x.array[:] = guess[0]
             self._pass(dt, 0.5, (force_old, guess[1], 1))
+        if self.consistent_end_source:
+            self._consistent_pressure()  # a^(1) from the pressure of u^(1)
         self._viscous_l_stable = sdirk
         # second pass from the start-of-step state, theta = 1/2 in eq. 2.10
         with self.timer("particles"):

@@ -217,6 +217,8 @@ class LagrangianFlow(TwoPasses, ParticleCapillary, ParticleTransfers, FlowSolver
         self.viscous_sdirk = fl.viscous_step == "sdirk2"
         #: the explicit source's pressure solved from u^n each step (flow.explicit_pressure)
         self.consistent_pressure = not self.gravity_only and fl.explicit_pressure == "consistent"
+        #: the second pass's end source from the pressure of u^(1) (flow.pass_pressure)
+        self.consistent_end_source = self.consistent_pressure and fl.pass_pressure == "consistent"
         #: the source integrated along the path (False: its end points; for measurements)
         self.path_source = True
         #: mean sub-steps per particle of the last move's source integral
