@@ -214,8 +214,8 @@ class FlowSection(Section):
     affine: bool
     density: str
     particle_redistance: bool
-    explicit_pressure: str
     pass_pressure: str
+    explicit_pressure: str
     pressure_step: str
     correction: str
     surface_tension: ExprText
