@@ -127,7 +127,7 @@ def test_frame_defaults_run_with_the_consistent_pass_pressure(shared_tmp):
     full explicit source, the schema's other keys: the second pass's end source from
     the pressure solved from the first pass's velocity keeps the kinetic energy below
     the potential energy released (``energy_excess_max`` 0.001 measured) and the run
-    reaches the end (with the first pass's p^n + dp it diverges in the 2nd step).
+    reaches the end (with the first pass's p^n + dp it diverges in the 3rd step).
     The particles' water volume changes by 5.2 % (front_error 0.175): stable, not
     accurate (docs/RESULTS.md, "Dam break").
     """

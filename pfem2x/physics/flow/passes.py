@@ -49,7 +49,7 @@ pressure of :math:`u^{(1)}` (``"consistent"``, solved like the start-of-step
 step). :math:`\delta p` removes the divergence of :math:`u^*`; at a density ratio of
 1000 its gradient on the light phase's nodes next to the interface is 85–180 g against
 2–4 g for the consistent pressure of the same velocity, and as the second pass's source
-it throws the air around (the dam break diverges in its 2nd–3rd step). The consistent
+it throws the air around (the dam break diverges in its 3rd step). The consistent
 end source runs it, but costs the Taylor–Green vortex at Courant 8 (0.0139 against
 0.0037): not the default (docs/RESULTS.md, "Why the incremental pressure diverges at
 ratio 1000").
