@@ -407,6 +407,14 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "was fitted with); false: carried unchanged (the flow stretches it, and the "
             "curvature falls back to the end-point fit)",
         ),
+        "pass_pressure": Key(
+            choice("increment", "consistent"),
+            "increment",
+            doc="PFEM-2, extra_pass with explicit_pressure = consistent: the pressure of the "
+            "second pass's end-of-step source; increment = the first pass's p^n + dp, "
+            "consistent = solved from the first pass's velocity like p^n (one more "
+            "pressure solve per step; runs the dam break at density ratio 1000)",
+        ),
         "explicit_pressure": Key(
             choice("consistent", "lagged"),
             "consistent",
@@ -575,6 +583,7 @@ FRAME_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
             "flow.predictor",
             "flow.viscous_step",
             "flow.explicit_pressure",
+            "flow.pass_pressure",
         ),
     },
 }

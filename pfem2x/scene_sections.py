@@ -214,6 +214,7 @@ class FlowSection(Section):
     affine: bool
     density: str
     particle_redistance: bool
+    pass_pressure: str
     explicit_pressure: str
     pressure_step: str
     correction: str

@@ -42,6 +42,18 @@ Not with surface tension (the predictor's operator then has the capillary
 term of :math:`\Delta t`): backward Euler (docs/RESULTS.md, "Where PFEM-2's Δt
 error comes from").
 
+The first pass's end source :math:`a^{(1)}` is built from its pressure
+:math:`p^n + \delta p^{(1)}` (``flow.pass_pressure = "increment"``) or from the consistent
+pressure of :math:`u^{(1)}` (``"consistent"``, solved like the start-of-step
+:math:`p^n` of ``flow.explicit_pressure = "consistent"``: one more pressure solve per
+step). :math:`\delta p` removes the divergence of :math:`u^*`; at a density ratio of
+1000 its gradient on the light phase's nodes next to the interface is 85–180 g against
+2–4 g for the consistent pressure of the same velocity, and as the second pass's source
+it throws the air around (the dam break diverges in its 3rd step). The consistent
+end source runs it, but costs the Taylor–Green vortex at Courant 8 (0.0139 against
+0.0037): not the default (docs/RESULTS.md, "Why the incremental pressure diverges at
+ratio 1000").
+
 The blends, the extrapolation and the SDIRK predictor apply with the source integrated
 along the path and the full source
 (``flow.pressure_step = "increment"``, ``flow.light_source = "full"``); otherwise
@@ -80,6 +92,9 @@ class TwoPasses:
     _viscous_l_stable: bool = False
     #: flow.viscous_step = "sdirk2"
     viscous_sdirk: bool
+    #: flow.pass_pressure = "consistent": the second pass's end source from the pressure
+    #: solved from the first pass's velocity (:meth:`LagrangianFlow._consistent_pressure`)
+    consistent_end_source: bool
 
     def _blends(self) -> bool:
         """Whether the passes blend the source in time (the full source along the path)."""
@@ -104,6 +119,8 @@ class TwoPasses:
         else:
             self.u.x.array[:] = guess[0]
             self._pass(dt, 0.5, (force_old, guess[1], 1))
+        if self.consistent_end_source:
+            self._consistent_pressure()  # a^(1) from the pressure of u^(1)
         self._viscous_l_stable = sdirk
         # second pass from the start-of-step state, theta = 1/2 in eq. 2.10
         with self.timer("particles"):
