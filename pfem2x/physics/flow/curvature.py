@@ -308,17 +308,21 @@ def distance_curvature(
     p = np.zeros((m, 4))
     p[:, 0] = 1.0  # (lambda, A, B, D), from the straight line
     ij = [(i, j) for i in range(4) for j in range(i, 4)]
-    for _ in range(iterations):  # (a fit that runs away ends non-finite: not ok)
+    for _ in range(iterations):
+        # a fit that runs away overflows and ends non-finite: masked here, not ok below
         with np.errstate(all="ignore"):
             dist, dA, dB, dD = _circle_distance(s, eta, p[ci, 1], p[ci, 2], p[ci, 3])
-        lam = p[ci, 0]
-        J = np.stack([dist, lam * dA, lam * dB, lam * dD], axis=1)
-        res = w * (y - lam * dist)
-        M = np.empty((m, 4, 4))
-        for i, j in ij:
-            M[:, i, j] = M[:, j, i] = np.bincount(ci, weights=w * J[:, i] * J[:, j], minlength=m)
-        rhs = np.stack([np.bincount(ci, weights=res * J[:, i], minlength=m) for i in range(4)], 1)
-        M += (np.einsum("cii->c", M)[:, None, None] * 1e-13 + 1e-300) * np.eye(4)[None]
+            lam = p[ci, 0]
+            J = np.stack([dist, lam * dA, lam * dB, lam * dD], axis=1)
+            res = w * (y - lam * dist)
+            M = np.empty((m, 4, 4))
+            for i, j in ij:
+                wij = w * J[:, i] * J[:, j]
+                M[:, i, j] = M[:, j, i] = np.bincount(ci, weights=wij, minlength=m)
+            rhs = np.stack(
+                [np.bincount(ci, weights=res * J[:, i], minlength=m) for i in range(4)], 1
+            )
+            M += (np.einsum("cii->c", M)[:, None, None] * 1e-13 + 1e-300) * np.eye(4)[None]
         bad = ~np.isfinite(M).all(axis=(1, 2)) | ~np.isfinite(rhs).all(axis=1)
         M[bad], rhs[bad] = np.eye(4), np.nan
         p += np.linalg.solve(M, rhs[:, :, None])[:, :, 0]
