@@ -15,11 +15,12 @@ the centroid at t = 3, the maximum rise velocity and its time, the minimum circu
 its time); they are marked as points. No reference curve or shape is stored in the
 repository.
 
-The second form draws the three relative errors of a ``pfem2x study rising-bubble``
-(``STUDY_DIR/study.csv``) against the CPU seconds of the time stepping, one marker per
-frame and damping, labelled with the Courant number, with the runs ``LABEL=RUN_DIR``
-(e.g. the scene's own small steps) as reference points and, per error, the Pareto front of
-all the points (error against CPU seconds).
+The second form draws errors of a ``pfem2x study`` (``STUDY_DIR/study.json``; by default
+the three relative errors of ``rising-bubble``, else ``--metric NAME[:TARGET]`` per panel)
+against the CPU seconds of the time stepping: one curve per value of the varied keys other
+than the Courant number, each point labelled with its Courant number, the runs
+``LABEL=RUN_DIR`` (e.g. the scene's own small steps) as reference points and, per panel,
+the Pareto front of all the points.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import csv
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -41,11 +43,11 @@ from pfem2x.study.rows import pareto_front  # noqa: E402
 #: The reference values with their times (TP2D, test case 1).
 REFERENCE = Path(__file__).resolve().parents[1] / "docs/data/rising-bubble/hysing2009.csv"
 
-#: (metric of ``summary.json``, axis label, tolerance at h = 1/40) of the study panels.
+#: (metric of ``summary.json``, target at h = 1/40): the default panels of ``--study``.
 ERRORS = (
-    ("centroid_y_final_rel_error", "centroid y_c(3)", 0.01),
-    ("rise_velocity_max_rel_error", "max rise velocity", 0.02),
-    ("circularity_min_rel_error", "min circularity", 0.01),
+    ("centroid_y_final_rel_error", 0.01),
+    ("rise_velocity_max_rel_error", 0.02),
+    ("circularity_min_rel_error", 0.01),
 )
 
 
@@ -197,85 +199,119 @@ def plot_runs(out: str, runs: list[str], time: float, reference: Path) -> None:
     fig.savefig(out)
 
 
-def read_study(folder: Path) -> list[dict[str, str]]:
-    """Read the rows of ``folder/study.csv`` (one per variant)."""
-    with open(folder / "study.csv", newline="") as f:
-        return list(csv.DictReader(f))
+def read_study(folder: Path) -> tuple[list[str], list[dict[str, Any]]]:
+    """Read ``folder/study.json``: the varied keys and the rows (one per variant)."""
+    data = json.loads((folder / "study.json").read_text())
+    return list(data["keys"]), list(data["rows"])
 
 
-def _num(row: dict[str, str], key: str) -> float:
-    """``row[key]`` as a float (NaN if missing or empty)."""
+def _num(row: dict[str, Any], key: str) -> float:
+    """``row[key]`` as a float (NaN if missing, empty or not a number)."""
     try:
-        return float(row.get(key) or "nan")
-    except ValueError:
+        return float(row.get(key))  # type: ignore[arg-type]
+    except (TypeError, ValueError):
         return float("nan")
 
 
-def plot_study(out: str, folder: Path, runs: list[str]) -> None:
-    """Draw the three relative errors of a study against CPU seconds into ``out``.
+def parse_metric(spec: str) -> tuple[str, float | None]:
+    """Split ``NAME[:TARGET]`` (TARGET a fraction, e.g. 0.01) into the name and target."""
+    name, _, target = spec.partition(":")
+    return name, float(target) if target else None
+
+
+def plot_study(
+    out: str,
+    folder: Path,
+    runs: list[str],
+    metrics: list[tuple[str, float | None]],
+    title: str = "",
+) -> None:
+    """Draw the errors of a study against the CPU seconds of its runs into ``out``.
+
+    One panel per metric (its absolute value in %); one curve per value of the varied keys
+    other than ``time.courant`` / ``time.dt`` (markers by frame), each point labelled with
+    its Courant number; the runs ``LABEL=RUN_DIR`` as black reference points; the Pareto
+    front of all the points of the panel (dashed).
 
     Parameters
     ----------
     out
         PNG file written.
     folder
-        A ``pfem2x study rising-bubble`` folder varying ``time.courant``,
-        ``method.frame`` and ``flow.capillary_damping``.
+        A ``pfem2x study`` folder (its ``study.json``).
     runs
-        ``LABEL=RUN_DIR`` of runs drawn as reference points (black markers).
+        ``LABEL=RUN_DIR`` of runs drawn as reference points.
+    metrics
+        ``(metric, target)`` per panel; the target (a fraction) is drawn as a dotted line.
+    title
+        Figure title.
     """
-    rows = read_study(folder)
-    fig, axes = plt.subplots(1, 3, figsize=(12.5, 4.2), dpi=90)
-    groups: dict[tuple[str, str], list[dict[str, str]]] = {}
+    keys, rows = read_study(folder)
+    others = [k for k in keys if k not in ("time.courant", "time.dt")]
+    groups: dict[tuple[str, ...], list[dict[str, Any]]] = {}
     for r in rows:
-        key = (r.get("method.frame", "").strip('"'), r.get("flow.capillary_damping", "").strip('"'))
-        groups.setdefault(key, []).append(r)
-    names = {"lagrangian": "PFEM-2", "eulerian": "level set"}
-    markers = {"lagrangian": "o", "eulerian": "s"}
-    styles = {"surface": "-", "normal": "--"}
-    for ax, (metric, title, tol) in zip(axes, ERRORS, strict=True):
+        groups.setdefault(tuple(json.dumps(r.get(k)).strip('"') for k in others), []).append(r)
+    iframe = others.index("method.frame") if "method.frame" in others else None
+
+    def _rest(values: tuple[str, ...]) -> tuple[str, ...]:
+        return tuple(v for i, v in enumerate(values) if i != iframe)
+
+    rest = sorted({_rest(v) for v in groups})  # the line style: the keys other than the frame
+    names = {"lagrangian": "PFEM-2", "eulerian": "Eulerian", "characteristic": "char. Galerkin"}
+    markers = {"lagrangian": "o", "eulerian": "s", "characteristic": "^"}
+    styles = ["-", "--", "-.", ":"]
+    size = (4.2 * len(metrics) + 0.5, 4.3) if len(metrics) > 1 else (6.5, 5.2)
+    fig, axes = plt.subplots(1, len(metrics), figsize=size, dpi=90)
+    axes = np.atleast_1d(axes)
+    for ax, (metric, target) in zip(axes, metrics, strict=True):
         pts: list[tuple[float, float]] = []
-        for (frame, damping), rs in sorted(groups.items()):
+        scale, unit = (100.0, " in %") if "rel_error" in metric else (1.0, "")
+        for values, rs in sorted(groups.items()):
             rs = sorted(rs, key=lambda r: _num(r, "time.courant"))
             cpu = np.array([_num(r, "cpu_seconds") for r in rs])
-            err = np.abs([_num(r, metric) for r in rs]) * 100
-            ax.plot(
-                cpu,
-                err,
-                markers.get(frame, "^") + styles.get(damping, ":"),
-                label=f"{names.get(frame, frame)}, {damping}",
+            err = np.abs([_num(r, metric) for r in rs]) * scale
+            frame = rs[0].get("frame", "")
+            label = ", ".join(
+                names.get(v, v) if k == "method.frame" else f"{k.split('.')[-1]} {v}"
+                for k, v in zip(others, values, strict=True)
             )
-            for r, x, y in zip(rs, cpu, err, strict=True):
-                if np.isfinite(x) and np.isfinite(y) and r.get("status") == "ok":
-                    pts.append((float(x), float(y)))
-                    ax.annotate(
-                        r.get("time.courant", ""), (x, y), fontsize=6, xytext=(3, 2),
-                        textcoords="offset points",
-                    )  # fmt: skip
+            ok = np.array([r.get("status") == "ok" for r in rs]) & np.isfinite(cpu * err)
+            ax.plot(
+                cpu[ok],
+                err[ok],
+                markers.get(frame, "D") + styles[rest.index(_rest(values)) % len(styles)],
+                label=label,
+            )
+            for r, x, y in zip(np.array(rs)[ok], cpu[ok], err[ok], strict=True):
+                pts.append((float(x), float(y)))
+                ax.annotate(
+                    f"{r.get('time.courant', '')}", (x, y), fontsize=6, xytext=(3, 2),
+                    textcoords="offset points",
+                )  # fmt: skip
         for i, spec in enumerate(runs):
             label, path = split_spec(spec)
             s = json.loads((path / "summary.json").read_text())
-            pts.append((float(s["cpu_seconds"]), abs(s["metrics"][metric]) * 100))
-            ax.plot(
-                *pts[-1],
-                "kP^v"[i % 4],
-                ms=8,
-                label=label,
-            )
-        xs = [x for x, _ in pts]
-        front = sorted(pts[i] for i in pareto_front(pts))
-        ax.plot(*np.array(front).T, "k--", drawstyle="steps-post", lw=0.8, label="Pareto front")
-        ax.set_xlim(0.5 * min(xs), 2 * max(xs))
-        ax.axhline(tol * 100, color="0.4", lw=0.8, ls=":", label=f"h = 1/40 target {tol:.0%}")
-        ax.set(xscale="log", yscale="log", xlabel="CPU s (time stepping)", title=title)
-        ax.set_ylabel("|relative error| in % against TP2D")
+            pts.append((float(s["cpu_seconds"]), abs(s["metrics"][metric]) * scale))
+            ax.plot(*pts[-1], "PXDv"[i % 4], color="k", ms=8, label=label)
+        if pts:
+            xs = [x for x, _ in pts]
+            front = sorted(pts[i] for i in pareto_front(pts))
+            ax.plot(*np.array(front).T, "k--", drawstyle="steps-post", lw=0.8, label="Pareto")
+            ax.set_xlim(0.5 * min(xs), 2 * max(xs))
+        name = metric.replace("_rel_error", "")
+        if target is not None:
+            ax.axhline(target * scale, color="0.4", lw=0.8, ls=":", label="target")
+            name += f" (target {target * scale:g}{unit.replace(' in', '')})"
+        ax.set(xscale="log", yscale="log", xlabel="CPU s (time stepping)")
+        ax.set_title(name, fontsize=10)
+        ax.set_ylabel(f"|{metric}|{unit}")
         ax.grid(alpha=0.3, which="both")
-    axes[0].legend(fontsize=7)
-    fig.suptitle(
-        "rising bubble case 1, h = 1/40, flow.capillary_increment = true; numbers: Courant",
-        fontsize=9,
-    )
-    fig.tight_layout()
+    handles, labels = axes[0].get_legend_handles_labels()
+    nleg = max(1, min(len(labels), 4 if len(metrics) > 1 else 2))
+    fig.legend(handles, labels, fontsize=7, loc="lower center", ncol=nleg)
+    fig.suptitle(f"{title}; numbers: Courant".lstrip("; "), fontsize=9)
+    nrow = -(-len(labels) // nleg)
+    fig.tight_layout(rect=(0, 0.035 * nrow * (4.3 / fig.get_figheight()) + 0.02, 1, 1))
     fig.savefig(out)
 
 
@@ -287,10 +323,19 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--time", type=float, default=3.0, help="time of the shapes (default 3)")
     p.add_argument("--reference", type=Path, default=REFERENCE, help="reference values (CSV)")
     p.add_argument("--study", type=Path, help="a study folder: draw its errors against CPU s")
+    p.add_argument(
+        "--metric",
+        action="append",
+        metavar="NAME[:TARGET]",
+        help="with --study: a panel per metric (default: the bubble's three relative errors "
+        "with the h = 1/40 targets 0.01, 0.02, 0.01)",
+    )
+    p.add_argument("--title", default="", help="with --study: the figure's title")
     a = p.parse_args(argv)
     try:
         if a.study is not None:
-            plot_study(a.out, a.study, a.runs)
+            metrics = [parse_metric(m) for m in a.metric] if a.metric else list(ERRORS)
+            plot_study(a.out, a.study, a.runs, metrics, a.title)
         elif not a.runs:
             p.error("at least one LABEL=RUN_DIR")
         else:
