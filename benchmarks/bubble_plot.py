@@ -21,6 +21,9 @@ against the CPU seconds of the time stepping: one curve per value of the varied 
 than the Courant number, each point labelled with its Courant number, the runs
 ``LABEL=RUN_DIR`` (e.g. the scene's own small steps) as reference points and, per panel,
 the Pareto front of all the points.
+
+``LABEL=RUN_DIR`` is split at its last ``=`` (a label may contain ``=``). A missing or
+unreadable file is one ``error:`` line on stderr and exit code 2, with nothing written.
 """
 
 from __future__ import annotations
