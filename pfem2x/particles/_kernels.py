@@ -1239,6 +1239,16 @@ def counting_sort(cells, ncells):
 
 
 @njit(cache=True, error_model="numpy")
+def gather_rows(src, idx, dst):
+    """``dst[i] = src[idx[i]]`` for the rows of ``(rows, k)`` arrays (a particle reordering)."""
+    k = src.shape[1]
+    for i in range(idx.shape[0]):
+        j = idx[i]
+        for c in range(k):
+            dst[i, c] = src[j, c]
+
+
+@njit(cache=True, error_model="numpy")
 def _mix64(z):
     """splitmix64 finaliser on uint64."""
     z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)

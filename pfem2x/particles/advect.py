@@ -138,7 +138,8 @@ def _accumulate(cloud: Cloud, source_field: str, scale: float) -> None:
     """``source_field += scale * _acc`` (the path integral), the field made if new."""
     if source_field not in cloud:
         cloud.add_field(source_field, cloud.field_shape("_acc"))
-    cloud.field(source_field)[:] += scale * cloud.field("_acc")
+    acc = cloud.field("_acc")
+    cloud.field(source_field)[:] += acc if scale == 1.0 else scale * acc
 
 
 def _check_source_field(
@@ -204,14 +205,16 @@ def _inputs(
 
 def _add_work_fields(cloud: Cloud, dt: float, k: int = 1) -> None:
     """The per-particle move state: time left, source integral (``k`` components), aux, stage."""
-    cloud.add_field("_tl", (), dt)
-    cloud.add_field("_acc", () if k == 1 else (k,))
-    cloud.add_field("_aux", (cloud.pmesh.gdim,))
-    cloud.add_field("_stage")
-    cloud.field("_tl")[:] = dt
-    cloud.field("_acc")[:] = 0.0
-    cloud.field2d("_aux")[:] = 0.0
-    cloud.field("_stage")[:] = K.STAGE_PATH
+    for name, shape, value in (
+        ("_tl", (), dt),
+        ("_acc", () if k == 1 else (k,), 0.0),
+        ("_aux", (cloud.pmesh.gdim,), 0.0),
+        ("_stage", (), K.STAGE_PATH),
+    ):
+        if name in cloud:
+            cloud.field2d(name)[:] = value
+        else:
+            cloud.add_field(name, shape, value)
 
 
 def _p1_pass(
