@@ -233,7 +233,8 @@ def _p1_pass(
     stage = cloud.field("_stage")
     parked = np.flatnonzero(stage == K.STAGE_PATH) if general else np.zeros(0, int)
     stage[parked] = K.STAGE_DONE  # the general path owns stage-0 particles
-    st2 = np.zeros(len(status), dtype=np.int8)
+    # without the general path every particle is still moving (ST_OK): the kernel's own
+    st2 = np.zeros(len(status), dtype=np.int8) if general else status
     state = K.MoveState(
         cloud.x,
         cloud.cells,
@@ -246,8 +247,9 @@ def _p1_pass(
     pm = cloud.pmesh
     stats.substeps += K.advect_p1(state, inp.un, inp.un1, inp.q, params, pm.arrays)
     stage[parked] = K.STAGE_PATH
-    busy = status == K.ST_OK
-    status[busy] = st2[busy]
+    if general:
+        busy = status == K.ST_OK
+        status[busy] = st2[busy]
 
 
 def _move_round(
