@@ -572,11 +572,12 @@ def _advect_p1_tri(
     """:func:`advect_p1` for triangles in 2D (:func:`_advect_p1_dim` for a constant ``dim = 2``).
 
     The regular sub-steps go first, two particles at a time (:func:`_path_lanes_tri`);
-    :func:`_advect_p1_dim` then finishes every particle from where they left it.
+    :func:`_advect_p1_dim` then finishes every particle from where they left it (those
+    whose path ended there with ``theta = 0`` are done already).
     """
     fast = _path_lanes_tri(
-        x, cell, t_left, aux, acc, stage, dt, un, q, has_q, courant, gcourant, nsub, origin,
-        inv, nbr, pshift, period, hc, dofs,
+        x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, has_q, courant, gcourant,
+        nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned,
     )  # fmt: skip
     return fast + _advect_p1_dim(
         x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
@@ -585,8 +586,9 @@ def _advect_p1_tri(
 
 
 @njit(cache=True, error_model="numpy")
-def _path_lanes_tri(x, cell, t_left, aux, acc, stage, dt, un, q, has_q, courant, gcourant,
-                    nsub, origin, inv, nbr, pshift, period, hc, dofs):  # fmt: skip
+def _path_lanes_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, has_q, courant,
+                    gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs,
+                    n_owned):  # fmt: skip
     """The regular path sub-steps of every particle in stage 0, two particles interleaved.
 
     Each particle's sub-steps are those of :func:`_advect_p1_dim`, operation for
@@ -596,7 +598,9 @@ def _path_lanes_tri(x, cell, t_left, aux, acc, stage, dt, un, q, has_q, courant,
     not regular (a walk that does not end inside a local cell); its state
     (position, cell, time left, displacement, source integral) is written back
     for :func:`_advect_p1_dim`, which redoes that sub-step and finishes the
-    particle. Returns the sub-steps taken.
+    particle. A particle at the end of its path with ``theta = 0`` is finished
+    here as :func:`_advect_p1_dim` would (no time left, done, its status), so that
+    loop passes over it. Returns the sub-steps taken.
     """
     n = x.shape[0]
     kq = q.shape[1]
@@ -707,6 +711,10 @@ def _path_lanes_tri(x, cell, t_left, aux, acc, stage, dt, un, q, has_q, courant,
                 x[pa, 1] = a_p1
                 cell[pa] = a_c
                 t_left[pa] = a_tl
+                if ok and theta == 0.0:  # the path's end: done (as _advect_p1_dim)
+                    t_left[pa] = 0.0
+                    stage[pa] = STAGE_DONE
+                    status[pa] = ST_GHOST if a_c >= n_owned else ST_OK
                 aux[pa, 0] = a_a0
                 aux[pa, 1] = a_a1
                 if has_q:
@@ -775,6 +783,10 @@ def _path_lanes_tri(x, cell, t_left, aux, acc, stage, dt, un, q, has_q, courant,
                 x[pb, 1] = b_p1
                 cell[pb] = b_c
                 t_left[pb] = b_tl
+                if ok and theta == 0.0:  # the path's end: done (as _advect_p1_dim)
+                    t_left[pb] = 0.0
+                    stage[pb] = STAGE_DONE
+                    status[pb] = ST_GHOST if b_c >= n_owned else ST_OK
                 aux[pb, 0] = b_a0
                 aux[pb, 1] = b_a1
                 if has_q:
@@ -1236,6 +1248,16 @@ def counting_sort(cells, ncells):
         order[pos[c]] = p
         pos[c] += 1
     return order, counts
+
+
+@njit(cache=True, error_model="numpy")
+def gather_rows(src, idx, dst):
+    """``dst[i] = src[idx[i]]`` for the rows of ``(rows, k)`` arrays (a particle reordering)."""
+    k = src.shape[1]
+    for i in range(idx.shape[0]):
+        j = idx[i]
+        for c in range(k):
+            dst[i, c] = src[j, c]
 
 
 @njit(cache=True, error_model="numpy")

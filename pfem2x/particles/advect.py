@@ -138,7 +138,8 @@ def _accumulate(cloud: Cloud, source_field: str, scale: float) -> None:
     """``source_field += scale * _acc`` (the path integral), the field made if new."""
     if source_field not in cloud:
         cloud.add_field(source_field, cloud.field_shape("_acc"))
-    cloud.field(source_field)[:] += scale * cloud.field("_acc")
+    acc = cloud.field("_acc")
+    cloud.field(source_field)[:] += acc if scale == 1.0 else scale * acc
 
 
 def _check_source_field(
@@ -204,14 +205,16 @@ def _inputs(
 
 def _add_work_fields(cloud: Cloud, dt: float, k: int = 1) -> None:
     """The per-particle move state: time left, source integral (``k`` components), aux, stage."""
-    cloud.add_field("_tl", (), dt)
-    cloud.add_field("_acc", () if k == 1 else (k,))
-    cloud.add_field("_aux", (cloud.pmesh.gdim,))
-    cloud.add_field("_stage")
-    cloud.field("_tl")[:] = dt
-    cloud.field("_acc")[:] = 0.0
-    cloud.field2d("_aux")[:] = 0.0
-    cloud.field("_stage")[:] = K.STAGE_PATH
+    for name, shape, value in (
+        ("_tl", (), dt),
+        ("_acc", () if k == 1 else (k,), 0.0),
+        ("_aux", (cloud.pmesh.gdim,), 0.0),
+        ("_stage", (), K.STAGE_PATH),
+    ):
+        if name in cloud:
+            cloud.field2d(name)[:] = value
+        else:
+            cloud.add_field(name, shape, value)
 
 
 def _p1_pass(
@@ -230,7 +233,8 @@ def _p1_pass(
     stage = cloud.field("_stage")
     parked = np.flatnonzero(stage == K.STAGE_PATH) if general else np.zeros(0, int)
     stage[parked] = K.STAGE_DONE  # the general path owns stage-0 particles
-    st2 = np.zeros(len(status), dtype=np.int8)
+    # without the general path every particle is still moving (ST_OK): the kernel's own
+    st2 = np.zeros(len(status), dtype=np.int8) if general else status
     state = K.MoveState(
         cloud.x,
         cloud.cells,
@@ -243,8 +247,9 @@ def _p1_pass(
     pm = cloud.pmesh
     stats.substeps += K.advect_p1(state, inp.un, inp.un1, inp.q, params, pm.arrays)
     stage[parked] = K.STAGE_PATH
-    busy = status == K.ST_OK
-    status[busy] = st2[busy]
+    if general:
+        busy = status == K.ST_OK
+        status[busy] = st2[busy]
 
 
 def _move_round(

@@ -47,7 +47,11 @@ class Cloud:
     in one pass. :meth:`sort_by_cell` reorders all arrays by cell (a
     counting sort), which makes the move and projection kernels several
     times faster; the cell offsets it leaves are used by the population
-    control.
+    control. A reordering gathers each array into a spare one of the same
+    shape and swaps the two (views taken before it, like those taken
+    before an ``append`` that grows the storage, no longer belong to the
+    cloud); the arrays of removed fields are kept as spares too, so the
+    move's work fields cost no fresh memory.
     """
 
     def __init__(
@@ -69,6 +73,8 @@ class Cloud:
         self._f: dict[str, np.ndarray] = {}
         self._shape: dict[str, tuple[int, ...]] = {}
         self._offsets: np.ndarray | None = None
+        #: spare storage arrays of the current capacity, by (row width, dtype)
+        self._spare: dict[tuple[int, str], list[np.ndarray]] = {}
         for name, shape in (fields or {}).items():
             self.add_field(name, shape)
 
@@ -132,19 +138,43 @@ class Cloud:
         return name in self._f
 
     def add_field(self, name: str, shape: Any = (), value: float = 0.0) -> None:
-        """Add a float field (``shape`` ``()`` or ``(k,)``), filled with ``value``."""
+        """Add a float field (``shape`` ``()`` or ``(k,)``), filled with ``value``.
+
+        The particles' values are ``value``; storage slots beyond :attr:`n` are
+        undefined (every operation writes a slot before it holds a particle).
+        """
         k, shp = _ncomp(shape)
         if name in self._f:
             if self._shape[name] != shp:
                 raise ValueError(f"field {name!r} exists with shape {self._shape[name]}")
             return
-        self._f[name] = np.full((self.capacity, k), float(value))
+        a = self._spare_array((self.capacity, k), np.float64)
+        a[: self._n] = float(value)
+        self._f[name] = a
         self._shape[name] = shp
 
     def remove_field(self, name: str) -> None:
-        """Drop a field (no error if absent)."""
-        self._f.pop(name, None)
+        """Drop a field (no error if absent); its storage is kept as a spare."""
+        a = self._f.pop(name, None)
         self._shape.pop(name, None)
+        if a is not None:
+            self._keep_spare(a)
+
+    def _spare_array(self, shape: tuple[int, ...], dtype: Any) -> np.ndarray:
+        """A spare storage array of ``shape`` (rows: the capacity), else a new one."""
+        width = shape[1] if len(shape) > 1 else 0
+        pool = self._spare.get((width, np.dtype(dtype).str))
+        if pool and pool[-1].shape == shape:
+            return pool.pop()
+        return np.empty(shape, dtype=dtype)
+
+    def _keep_spare(self, a: np.ndarray) -> None:
+        """Keep storage array ``a`` (of the current capacity) for re-use."""
+        if a.shape[0] == self.capacity:
+            width = a.shape[1] if a.ndim > 1 else 0
+            pool = self._spare.setdefault((width, a.dtype.str), [])
+            if len(pool) < 4:
+                pool.append(a)
 
     # ------------------------------------------------------------------ storage
     def reserve(self, capacity: int) -> None:
@@ -153,6 +183,7 @@ class Cloud:
             return
         cap = max(int(capacity), 2 * self.capacity)
         n = self._n
+        self._spare.clear()
         x = np.zeros((cap, self.gdim))
         x[:n] = self._x[:n]
         c = np.zeros(cap, dtype=np.int32)
@@ -198,11 +229,26 @@ class Cloud:
         return int(mask.sum())
 
     def _take(self, idx: np.ndarray) -> None:
+        """Keep particles ``idx`` (int64, each index once), in that order.
+
+        Each array is gathered into a spare array of its shape, which then takes
+        its place (the old one becomes the spare).
+        """
         m = len(idx)
-        self._x[:m] = self._x[idx]
-        self._c[:m] = self._c[idx]
-        for a in self._f.values():
-            a[:m] = a[idx]
+        idx = np.ascontiguousarray(idx, dtype=np.int64)
+        x = self._spare_array(self._x.shape, self._x.dtype)
+        K.gather_rows(self._x, idx, x)
+        self._keep_spare(self._x)
+        self._x = x
+        c = self._spare_array(self._c.shape, self._c.dtype)
+        np.take(self._c, idx, out=c[:m])
+        self._keep_spare(self._c)
+        self._c = c
+        for name, a in self._f.items():
+            b = self._spare_array(a.shape, a.dtype)
+            K.gather_rows(a, idx, b)
+            self._keep_spare(a)
+            self._f[name] = b
         self._n = m
         self._offsets = None
 

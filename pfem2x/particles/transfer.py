@@ -122,7 +122,14 @@ def project(
     K.project_solve(acc, g, k, linear, out, filled, fb, float(min_spread), float(max_extrap))
     tgt = _target_array(pm, target, k)
     tgt[:nd][filled] = out[filled]
-    if empty == "neighbours" and cloud.comm.allreduce(int((~filled).sum()), op=MPI.SUM):
+    # one reduction for the statistics and the question whether any node is empty
+    own = pm.n_dofs_owned
+    empty_here = ~filled
+    counts = np.array(
+        [own, int(empty_here[:own].sum()), int(fb[:own].sum()), int(empty_here.sum())]
+    )
+    counts = cloud.comm.allreduce(counts, op=MPI.SUM)
+    if empty == "neighbours" and counts[3]:
         vec2 = _work_vector(pm, 1 + k, "fill")
         a2 = np.asarray(vec2.array).reshape(-1, 1 + k)
         a2[:] = 0.0
@@ -131,9 +138,6 @@ def project(
         compat.scatter_forward(vec2)
         fill = (~filled) & (a2[:, 0] > 0)
         tgt[:nd][fill] = a2[fill, 1:] / a2[fill, :1]
-    own = pm.n_dofs_owned
-    counts = np.array([own, int((~filled[:own]).sum()), int(fb[:own].sum())])
-    counts = cloud.comm.allreduce(counts, op=MPI.SUM)
     return ProjectionStats(int(counts[0]), int(counts[1]), int(counts[2]))
 
 
@@ -168,7 +172,7 @@ def add_increment(cloud: Cloud, name: str, delta: Any, scale: float = 1.0) -> No
     The particle values are never overwritten, so their sub-cell detail survives.
     """
     v = evaluate(cloud, delta)
-    cloud.field(name)[...] += scale * v
+    cloud.field(name)[...] += v if scale == 1.0 else scale * v
 
 
 def _eval_at(pm: Any, f: Any, x: np.ndarray, cells: np.ndarray) -> np.ndarray:
