@@ -57,7 +57,19 @@ def test_checkpoint_with_extra_entries_resumes_bit_identically(tmp_path, frame):
     rb = Simulation.resume(tmp_path / "part", quiet=True).run()
     assert rb.status == "ok" and rb.summary["resumed_at_step"] == 2
     assert rb.summary["steps"] == ra.summary["steps"] == 3
-    assert rb.summary["metrics"] == ra.summary["metrics"]
+    if not compat.NEW_API:  # Debian's DOLFINx 0.5.2: bit-identical
+        assert rb.summary["metrics"] == ra.summary["metrics"]
+        return
+    # DOLFINx 0.11 (PyPI wheel): the resumed flow-lagrangian run's metrics depend on the
+    # interpreter's hash seed when the form kernels come from FFCx's disk cache filled by
+    # other processes (PYTHONHASHSEED 0-11: three outcomes, up to 8e-16 relative; with a
+    # fresh cache every seed gives the uninterrupted run's bits). Round-off is asserted.
+    ma, mb = ra.summary["metrics"], rb.summary["metrics"]
+    assert ma.keys() == mb.keys()
+    for k, va in ma.items():
+        a, b = np.asarray(va, dtype=float), np.asarray(mb[k], dtype=float)
+        assert a.shape == b.shape, k
+        assert np.all(np.abs(a - b) <= 1e-13 * np.maximum(np.abs(a), 1e-300)), k
 
 
 @serial_052
