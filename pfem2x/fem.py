@@ -19,15 +19,6 @@ __all__ = ["COUNTERS", "LinearSolver", "assemble_matrix", "reset_counters"]
 #: (and ``error_integrals``: exact-solution error integrals of the flow diagnostics).
 COUNTERS: Counter[str] = Counter()
 
-#: BoomerAMG options on more than one rank (a user's ``PETSC_OPTIONS`` win): the
-#: coarsest level relaxed by symmetric SOR/Jacobi instead of PETSc's default
-#: Gaussian elimination, which gathers and factorises the coarse operator on every
-#: rank at every set-up (the set-up does not shrink with the ranks; the pressure
-#: operator is re-assembled every pass). On one rank nothing changes.
-PARALLEL_HYPRE_OPTIONS: dict[str, str] = {
-    "pc_hypre_boomeramg_relax_type_coarse": "symmetric-SOR/Jacobi",
-}
-
 
 def reset_counters() -> None:
     """Zero :data:`COUNTERS`."""
@@ -85,11 +76,6 @@ class LinearSolver:
                 if pre == "hypre":
                     pc.setType("hypre")
                     pc.setHYPREType("boomeramg")
-                    if A.getComm().getSize() > 1:
-                        opts = PETSc.Options()
-                        for key, value in PARALLEL_HYPRE_OPTIONS.items():
-                            if not opts.hasName(key):
-                                opts[key] = value
                 elif pre == "gamg":
                     pc.setType("gamg")
                 elif pre == "jacobi":
