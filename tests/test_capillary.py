@@ -318,6 +318,24 @@ def test_rising_bubble_small_metrics(tmp_path):
     assert "centroid_y_final_rel_error" not in m  # t_end < 3: no comparison
 
 
+def bubble_h40_to_1_6(out, frame: str, dt: float, *overrides: str) -> dict:
+    """The rising bubble's small variant at h = 1/40 with a fixed ``dt`` to t = 1.6: metrics."""
+    sc = load_scene(
+        "rising-bubble",
+        variant="small",
+        overrides=[
+            f'method.frame="{frame}"',
+            "mesh.cells=[40, 80]",
+            f"time.dt={dt}",
+            "time.t_end=1.6",
+            *overrides,
+        ],
+    )
+    res = Simulation(sc, out, quiet=True).run()
+    assert res.status == "ok"
+    return res.summary["metrics"]
+
+
 @pytest.mark.parametrize(
     ("frame", "increment", "lo", "hi"),
     [
@@ -332,20 +350,9 @@ def test_capillary_increment_large_step(tmp_path, frame, increment, lo, hi):
     Measured minimum circularity: level set 0.935 with ``flow.capillary_increment``,
     0.799 without (capillary waves); PFEM-2 0.947 with (bubble volume 0.7 %).
     """
-    sc = load_scene(
-        "rising-bubble",
-        variant="small",
-        overrides=[
-            f'method.frame="{frame}"',
-            "mesh.cells=[40, 80]",
-            "time.dt=0.1",
-            "time.t_end=1.6",
-            f"flow.capillary_increment={str(increment).lower()}",
-        ],
+    m = bubble_h40_to_1_6(
+        tmp_path / "run", frame, 0.1, f"flow.capillary_increment={str(increment).lower()}"
     )
-    res = Simulation(sc, tmp_path / "run", quiet=True).run()
-    assert res.status == "ok"
-    m = res.summary["metrics"]
     assert m["capillary_dt_ratio_max"] > 13.0
     assert lo < m["circularity_min"] < hi
     assert m["volume_change_max_bubble"] < 1.5e-2
@@ -608,21 +615,13 @@ def test_capillary_damping_normal_large_step(tmp_path, frame):
     """
     runs = {}
     for damping in ("surface", "normal"):
-        sc = load_scene(
-            "rising-bubble",
-            variant="small",
-            overrides=[
-                f'method.frame="{frame}"',
-                "mesh.cells=[40, 80]",
-                "time.dt=0.2",
-                "time.t_end=1.6",
-                "flow.capillary_increment=true",
-                f'flow.capillary_damping="{damping}"',
-            ],
+        runs[damping] = bubble_h40_to_1_6(
+            tmp_path / damping,
+            frame,
+            0.2,
+            "flow.capillary_increment=true",
+            f'flow.capillary_damping="{damping}"',
         )
-        res = Simulation(sc, tmp_path / damping, quiet=True).run()
-        assert res.status == "ok"
-        runs[damping] = res.summary["metrics"]
     s, n = runs["surface"], runs["normal"]
     assert n["centroid_y_final"] > s["centroid_y_final"] + 0.01
     assert 0.85 < n["circularity_min"] < s["circularity_min"] - 0.01

@@ -35,21 +35,12 @@ def final_error(cells: int, courant: float, *overrides: str) -> float:
     return err
 
 
-@pytest.mark.mpi
-def test_error_flat_in_dt_16():
-    """16 × 16: Courant 8 within 1.5 × Courant 0.5, and 5 × below the Eulerian frame."""
-    e05 = final_error(16, 0.5)
-    e8 = final_error(16, 8.0)
-    eul8 = final_error(16, 8.0, "method.frame=eulerian")
-    assert e8 <= 1.5 * e05, (e05, e8)
-    assert e8 <= eul8 / 5.0, (e8, eul8)
-
-
-def test_error_flat_in_dt_32():
-    """32 × 32: Courant 8 within 1.5 × Courant 0.5, and 5 × below the Eulerian frame."""
-    e05 = final_error(32, 0.5)
-    e8 = final_error(32, 8.0)
-    eul8 = final_error(32, 8.0, "method.frame=eulerian")
+@pytest.mark.parametrize("n", [pytest.param(16, marks=pytest.mark.mpi), 32])
+def test_error_flat_in_dt(n):
+    """n × n: Courant 8 within 1.5 × Courant 0.5, and 5 × below the Eulerian frame."""
+    e05 = final_error(n, 0.5)
+    e8 = final_error(n, 8.0)
+    eul8 = final_error(n, 8.0, "method.frame=eulerian")
     assert e8 <= 1.5 * e05, (e05, e8)
     assert e8 <= eul8 / 5.0, (e8, eul8)
 
