@@ -339,12 +339,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "max_speed": Key(expr_text, 0.0, doc="|u| above this is divergence (0: no check)"),
         "extra_pass": Key(boolean, False, doc="PFEM-2: second pass with theta = 1/2"),
         "pass_splits": Key(
-            integer(1, 64),
-            4,
-            doc="PFEM-2, extra_pass: the second (theta = 1/2) pass moves in this many equal "
-            "parts of the step, each along the velocity and with the source blended linearly "
-            "in time (at the part's middle) from the start of the step to the first pass's "
-            "end (1: their means over the whole step)",
+            integer(0, 64),
+            0,
+            doc="PFEM-2, extra_pass: the second (theta = 1/2) pass sees the velocity and the "
+            "source linear in time from the start of the step to the first pass's end; 0: in "
+            "one move, each sub-step with the values of its own times; m > 0: in m equal "
+            "parts, each with the values of its middle (1: their means over the whole step)",
         ),
         "predictor": Key(
             choice("extrapolated", "euler"),

@@ -66,10 +66,14 @@ accumulated displacement (stage 0) or the anchor ``y`` of eq. (2.10)
 (stage 1), ``acc (n, k)`` source integral (per component), ``stage (n,)``, ``status (n,)`` int8.
 """
 
-MoveParams = namedtuple("MoveParams", ["dt", "theta", "courant", "gcourant", "nsub", "has_q"])
+MoveParams = namedtuple(
+    "MoveParams", ["dt", "theta", "courant", "gcourant", "nsub", "has_q", "blend"]
+)
 MoveParams.__doc__ = """Parameters of one move: step ``dt``, X-IVAS ``theta``, sub-step
-limits ``courant`` and ``gcourant`` (or ``nsub > 0`` fixed sub-steps), and
-``has_q`` (a nodal source ``q (ndofs, k)`` is integrated along the path)."""
+limits ``courant`` and ``gcourant`` (or ``nsub > 0`` fixed sub-steps),
+``has_q`` (a nodal source ``q (ndofs, k)`` is integrated along the path) and
+``blend`` (the velocity and the source go linearly in time over the move: at
+time ``s`` after its start ``un + (s/dt) du`` and ``q + (s/dt) dq``)."""
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -502,7 +506,7 @@ def theta_stage(
 
 
 @njit(cache=True, error_model="numpy")
-def advect_p1(P, un, un1, q, S, M):
+def advect_p1(P, un, un1, du, q, dq, S, M):
     """Fused X-IVAS move + locate of every unfinished particle (P1 velocity).
 
     Heun (RK2) sub-steps along the streamline of ``un`` (``(ndofs, gdim)``),
@@ -512,7 +516,9 @@ def advect_p1(P, un, un1, q, S, M):
     with ``un1``. Along the path ``acc += int q dt`` (trapezoid per sub-step,
     each of the ``k`` components of ``q (ndofs, k)``) when ``has_q``. ``aux``
     holds the accumulated displacement (stage 0) or the anchor ``y`` (stage 1).
-    Returns the number of sub-steps taken.
+    Returns the number of sub-steps taken. With ``blend`` the velocity and the
+    source at time ``s`` of the move are ``un + (s/dt) du`` and ``q + (s/dt) dq``
+    (linear in time; ``theta`` is then 0).
 
     ``P`` is a :class:`MoveState` (updated in place), ``S`` a
     :class:`MoveParams`, ``M`` the :class:`MeshArrays`. One loop
@@ -520,16 +526,16 @@ def advect_p1(P, un, un1, q, S, M):
     compiled for the constant ``dim = 2``.
     """
     x, cell, t_left, aux, acc, stage, status = P
-    dt, theta, courant, gcourant, nsub, has_q = S
+    dt, theta, courant, gcourant, nsub, has_q, blend = S
     origin, inv, _, hc, dofs, nbr, pshift, period, n_owned = M
     if x.shape[1] == 2 and inv.shape[1] == 2:
         return _advect_p1_tri(
             x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
-            gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned,
+            gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, dq, blend,
         )  # fmt: skip
     return _advect_p1_any(
         x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
-        gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned,
+        gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, dq, blend,
     )  # fmt: skip
 
 
@@ -562,12 +568,30 @@ def _grad_norm_s(un, d0, d1, d2, d3, c, inv, dim):
     return np.sqrt(gs)
 
 
+@njit(cache=True, error_model="numpy")
+def _grad_norm_end_s(un, du, d0, d1, d2, d3, c, inv, dim):
+    """:func:`_grad_norm_s` of ``un + du`` (a move's velocity at its end, ``blend``)."""
+    gs = 0.0
+    for k in range(dim):
+        for b in range(dim):
+            g = -inv[c, 0, b]
+            for i in range(1, dim):
+                g -= inv[c, i, b]
+            gv = (un[d0, k] + du[d0, k]) * g + (un[d1, k] + du[d1, k]) * inv[c, 0, b]
+            if dim > 1:
+                gv += (un[d2, k] + du[d2, k]) * inv[c, 1, b]
+            if dim > 2:
+                gv += (un[d3, k] + du[d3, k]) * inv[c, 2, b]
+            gs += gv * gv
+    return np.sqrt(gs)
+
+
 # Deliberately two entry points of one loop: _advect_p1_tri passes dim as the literal 2 so
 # numba compiles the 2D loop without the other dimensions' branches; _advect_p1_any reads it.
 @njit(cache=True, error_model="numpy")
 def _advect_p1_tri(
     x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
-    gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned,
+    gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, dq, blend,
 ):  # fmt: skip
     """:func:`advect_p1` for triangles in 2D (:func:`_advect_p1_dim` for a constant ``dim = 2``).
 
@@ -577,18 +601,18 @@ def _advect_p1_tri(
     """
     fast = _path_lanes_tri(
         x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, has_q, courant, gcourant,
-        nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned,
+        nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, dq, blend,
     )  # fmt: skip
     return fast + _advect_p1_dim(
         x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
-        gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, 2,
+        gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, dq, blend, 2,
     )  # fmt: skip
 
 
 @njit(cache=True, error_model="numpy")
 def _path_lanes_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, has_q, courant,
                     gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs,
-                    n_owned):  # fmt: skip
+                    n_owned, du, dq, blend):  # fmt: skip
     """The regular path sub-steps of every particle in stage 0, two particles interleaved.
 
     Each particle's sub-steps are those of :func:`_advect_p1_dim`, operation for
@@ -614,6 +638,8 @@ def _path_lanes_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, 
     a_p0 = a_p1 = a_l0 = a_l1 = a_l2 = a_tl = a_a0 = a_a1 = 0.0
     b_p0 = b_p1 = b_l0 = b_l1 = b_l2 = b_tl = b_a0 = b_a1 = 0.0
     a_c = b_c = 0
+    t0 = t1 = 0.0  # the time fractions of a sub-step's ends (blend)
+    z0 = z1 = 0.0  # the change of the velocity over the move at a sub-step's start (blend)
     while True:
         if pa < 0:
             while nxt < n and (stage[nxt] != STAGE_PATH or not t_left[nxt] > tol):
@@ -656,6 +682,12 @@ def _path_lanes_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, 
             d2 = dofs[a_c, 2]
             v0 = _eval_s(un, 0, d0, d1, d2, 0, a_l0, a_l1, a_l2, 0.0, 2)
             v1 = _eval_s(un, 1, d0, d1, d2, 0, a_l0, a_l1, a_l2, 0.0, 2)
+            if blend:
+                t0 = (dt - a_tl) / dt
+                z0 = _eval_s(du, 0, d0, d1, d2, 0, a_l0, a_l1, a_l2, 0.0, 2)
+                z1 = _eval_s(du, 1, d0, d1, d2, 0, a_l0, a_l1, a_l2, 0.0, 2)
+                v0 += t0 * z0
+                v1 += t0 * z1
             if nsub > 0:
                 h = dt / nsub
                 m = np.ceil(a_tl / h - 1e-9)
@@ -663,15 +695,28 @@ def _path_lanes_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, 
                     m = 1.0
                 h = a_tl / m
             else:
-                rate = np.sqrt(v0 * v0 + v1 * v1) / (courant * hc[a_c])
+                sp = v0 * v0 + v1 * v1
+                if blend:  # the speed at the move's end here too
+                    y0 = v0 + (1.0 - t0) * z0
+                    y1 = v1 + (1.0 - t0) * z1
+                    sq = y0 * y0 + y1 * y1
+                    if sq > sp:
+                        sp = sq
+                rate = np.sqrt(sp) / (courant * hc[a_c])
                 if gcourant > 0.0:
                     gr = _grad_norm_s(un, d0, d1, d2, 0, a_c, inv, 2) / gcourant
                     if gr > rate:
                         rate = gr
+                    if blend:
+                        gr = _grad_norm_end_s(un, du, d0, d1, d2, 0, a_c, inv, 2) / gcourant
+                        if gr > rate:
+                            rate = gr
                 m = np.ceil(a_tl * rate)
                 if m < 1.0:
                     m = 1.0
                 h = a_tl / m
+            if blend:
+                t1 = (dt - a_tl + h) / dt
             _x0, _x1, _x2, cm, s, m0, m1, m2, _m3, _s0, _s1, _s2 = _walk_s(
                 a_p0 + h * v0, a_p1 + h * v1, 0.0, a_c, origin, inv, nbr, pshift, period, 1000, 2
             )
@@ -682,6 +727,9 @@ def _path_lanes_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, 
                 e2 = dofs[cm, 2]
                 w0 = _eval_s(un, 0, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
                 w1 = _eval_s(un, 1, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
+                if blend:
+                    w0 += t1 * _eval_s(du, 0, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
+                    w1 += t1 * _eval_s(du, 1, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
                 n0, n1, _n2, cn, s, k0, k1, k2, _k3, s0, s1, _s2 = _walk_s(
                     a_p0 + 0.5 * h * (v0 + w0), a_p1 + 0.5 * h * (v1 + w1), 0.0, a_c, origin,
                     inv, nbr, pshift, period, 1000, 2,
@@ -695,6 +743,9 @@ def _path_lanes_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, 
                     for j in range(kq):
                         qv = _eval_s(q, j, d0, d1, d2, 0, a_l0, a_l1, a_l2, 0.0, 2)
                         qe = _eval_s(q, j, f0, f1, f2, 0, k0, k1, k2, 0.0, 2)
+                        if blend:
+                            qv += t0 * _eval_s(dq, j, d0, d1, d2, 0, a_l0, a_l1, a_l2, 0.0, 2)
+                            qe += t1 * _eval_s(dq, j, f0, f1, f2, 0, k0, k1, k2, 0.0, 2)
                         ak[0, j] += 0.5 * h * (qv + qe)
                 a_a0 += n0 - s0 - a_p0
                 a_a1 += n1 - s1 - a_p1
@@ -728,6 +779,12 @@ def _path_lanes_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, 
             d2 = dofs[b_c, 2]
             v0 = _eval_s(un, 0, d0, d1, d2, 0, b_l0, b_l1, b_l2, 0.0, 2)
             v1 = _eval_s(un, 1, d0, d1, d2, 0, b_l0, b_l1, b_l2, 0.0, 2)
+            if blend:
+                t0 = (dt - b_tl) / dt
+                z0 = _eval_s(du, 0, d0, d1, d2, 0, b_l0, b_l1, b_l2, 0.0, 2)
+                z1 = _eval_s(du, 1, d0, d1, d2, 0, b_l0, b_l1, b_l2, 0.0, 2)
+                v0 += t0 * z0
+                v1 += t0 * z1
             if nsub > 0:
                 h = dt / nsub
                 m = np.ceil(b_tl / h - 1e-9)
@@ -735,15 +792,28 @@ def _path_lanes_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, 
                     m = 1.0
                 h = b_tl / m
             else:
-                rate = np.sqrt(v0 * v0 + v1 * v1) / (courant * hc[b_c])
+                sp = v0 * v0 + v1 * v1
+                if blend:  # the speed at the move's end here too
+                    y0 = v0 + (1.0 - t0) * z0
+                    y1 = v1 + (1.0 - t0) * z1
+                    sq = y0 * y0 + y1 * y1
+                    if sq > sp:
+                        sp = sq
+                rate = np.sqrt(sp) / (courant * hc[b_c])
                 if gcourant > 0.0:
                     gr = _grad_norm_s(un, d0, d1, d2, 0, b_c, inv, 2) / gcourant
                     if gr > rate:
                         rate = gr
+                    if blend:
+                        gr = _grad_norm_end_s(un, du, d0, d1, d2, 0, b_c, inv, 2) / gcourant
+                        if gr > rate:
+                            rate = gr
                 m = np.ceil(b_tl * rate)
                 if m < 1.0:
                     m = 1.0
                 h = b_tl / m
+            if blend:
+                t1 = (dt - b_tl + h) / dt
             _x0, _x1, _x2, cm, s, m0, m1, m2, _m3, _s0, _s1, _s2 = _walk_s(
                 b_p0 + h * v0, b_p1 + h * v1, 0.0, b_c, origin, inv, nbr, pshift, period, 1000, 2
             )
@@ -754,6 +824,9 @@ def _path_lanes_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, 
                 e2 = dofs[cm, 2]
                 w0 = _eval_s(un, 0, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
                 w1 = _eval_s(un, 1, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
+                if blend:
+                    w0 += t1 * _eval_s(du, 0, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
+                    w1 += t1 * _eval_s(du, 1, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
                 n0, n1, _n2, cn, s, k0, k1, k2, _k3, s0, s1, _s2 = _walk_s(
                     b_p0 + 0.5 * h * (v0 + w0), b_p1 + 0.5 * h * (v1 + w1), 0.0, b_c, origin,
                     inv, nbr, pshift, period, 1000, 2,
@@ -767,6 +840,9 @@ def _path_lanes_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, 
                     for j in range(kq):
                         qv = _eval_s(q, j, d0, d1, d2, 0, b_l0, b_l1, b_l2, 0.0, 2)
                         qe = _eval_s(q, j, f0, f1, f2, 0, k0, k1, k2, 0.0, 2)
+                        if blend:
+                            qv += t0 * _eval_s(dq, j, d0, d1, d2, 0, b_l0, b_l1, b_l2, 0.0, 2)
+                            qe += t1 * _eval_s(dq, j, f0, f1, f2, 0, k0, k1, k2, 0.0, 2)
                         ak[1, j] += 0.5 * h * (qv + qe)
                 b_a0 += n0 - s0 - b_p0
                 b_a1 += n1 - s1 - b_p1
@@ -799,19 +875,20 @@ def _path_lanes_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, 
 @njit(cache=True, error_model="numpy")
 def _advect_p1_any(
     x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
-    gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned,
+    gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, dq, blend,
 ):  # fmt: skip
     """:func:`advect_p1` in any dimension (:func:`_advect_p1_dim` for a run-time ``dim``)."""
     return _advect_p1_dim(
         x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
-        gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, inv.shape[1],
+        gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, dq, blend,
+        inv.shape[1],
     )  # fmt: skip
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _advect_p1_dim(
     x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
-    gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, dim,
+    gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, dq, blend, dim,
 ):  # fmt: skip
     """The loop of :func:`advect_p1` (inlined: a constant ``dim`` folds its branches).
 
@@ -827,6 +904,8 @@ def _advect_p1_dim(
     kq = q.shape[1]
     ak = np.zeros(kq)  # the source integral of the particle (k components)
     qv = np.zeros(kq)  # the source at the start of a sub-step
+    t0 = t1 = 0.0  # the time fractions of a sub-step's ends (blend)
+    z0 = z1 = z2 = 0.0  # the change of the velocity over the move at a sub-step's start
     nsteps = 0
     for p in range(n):
         if stage[p] == STAGE_DONE:
@@ -854,6 +933,14 @@ def _advect_p1_dim(
                 v0 = _eval_s(un, 0, d0, d1, d2, d3, l0, l1, l2, l3, dim)
                 v1 = _eval_s(un, 1, d0, d1, d2, d3, l0, l1, l2, l3, dim) if dim > 1 else 0.0
                 v2 = _eval_s(un, 2, d0, d1, d2, d3, l0, l1, l2, l3, dim) if dim > 2 else 0.0
+                if blend:
+                    t0 = (dt - tl) / dt
+                    z0 = _eval_s(du, 0, d0, d1, d2, d3, l0, l1, l2, l3, dim)
+                    z1 = _eval_s(du, 1, d0, d1, d2, d3, l0, l1, l2, l3, dim) if dim > 1 else 0.0
+                    z2 = _eval_s(du, 2, d0, d1, d2, d3, l0, l1, l2, l3, dim) if dim > 2 else 0.0
+                    v0 += t0 * z0
+                    v1 += t0 * z1
+                    v2 += t0 * z2
                 if nsub > 0:
                     h = dt / nsub
                     m = np.ceil(tl / h - 1e-9)
@@ -866,11 +953,26 @@ def _advect_p1_dim(
                         sp += v1 * v1
                     if dim > 2:
                         sp += v2 * v2
+                    if blend:  # the speed at the move's end here too
+                        y0 = v0 + (1.0 - t0) * z0
+                        y1 = v1 + (1.0 - t0) * z1
+                        y2 = v2 + (1.0 - t0) * z2
+                        sq = y0 * y0
+                        if dim > 1:
+                            sq += y1 * y1
+                        if dim > 2:
+                            sq += y2 * y2
+                        if sq > sp:
+                            sp = sq
                     rate = np.sqrt(sp) / (courant * hc[c])
                     if gcourant > 0.0:
                         gr = _grad_norm_s(un, d0, d1, d2, d3, c, inv, dim) / gcourant
                         if gr > rate:
                             rate = gr
+                        if blend:
+                            gr = _grad_norm_end_s(un, du, d0, d1, d2, d3, c, inv, dim) / gcourant
+                            if gr > rate:
+                                rate = gr
                     m = np.ceil(tl * rate)
                     if m < 1.0:
                         m = 1.0
@@ -904,6 +1006,8 @@ def _advect_p1_dim(
                     if has_q:
                         for j in range(kq):
                             qv[j] = _eval_s(q, j, d0, d1, d2, d3, l0, l1, l2, l3, dim)
+                            if blend:
+                                qv[j] += t0 * _eval_s(dq, j, d0, d1, d2, d3, l0, l1, l2, l3, dim)
                     n0, n1, n2, cn, s, l0, l1, l2, l3, s0, s1, s2 = _walk_s(
                         p0 + h * v0, p1 + h * v1, p2 + h * v2, c, origin, inv, nbr, pshift,
                         period, 1000, dim,
@@ -931,9 +1035,19 @@ def _advect_p1_dim(
                 w0 = _eval_s(un, 0, e0, e1, e2, e3, m0, m1, m2, m3, dim)
                 w1 = _eval_s(un, 1, e0, e1, e2, e3, m0, m1, m2, m3, dim) if dim > 1 else 0.0
                 w2 = _eval_s(un, 2, e0, e1, e2, e3, m0, m1, m2, m3, dim) if dim > 2 else 0.0
+                if blend:
+                    t1 = (dt - tl + h) / dt
+                    w0 += t1 * _eval_s(du, 0, e0, e1, e2, e3, m0, m1, m2, m3, dim)
+                    if dim > 1:
+                        w1 += t1 * _eval_s(du, 1, e0, e1, e2, e3, m0, m1, m2, m3, dim)
+                    if dim > 2:
+                        w2 += t1 * _eval_s(du, 2, e0, e1, e2, e3, m0, m1, m2, m3, dim)
                 if has_q:
                     for j in range(kq):
                         qv[j] = _eval_s(q, j, d0, d1, d2, d3, l0, l1, l2, l3, dim)
+                        if blend:
+                            qv[j] += t0 * _eval_s(dq, j, d0, d1, d2, d3, l0, l1, l2, l3, dim)
+                b0, b1, b2, b3 = l0, l1, l2, l3  # the start's barycentrics
                 n0, n1, n2, cn, s, l0, l1, l2, l3, s0, s1, s2 = _walk_s(
                     p0 + 0.5 * h * (v0 + w0), p1 + 0.5 * h * (v1 + w1), p2 + 0.5 * h * (v2 + w2),
                     c, origin, inv, nbr, pshift, period, 1000, dim,
@@ -945,6 +1059,13 @@ def _advect_p1_dim(
                     f3 = dofs[cn, 3] if dim > 2 else 0
                     for j in range(kq):
                         qe = _eval_s(q, j, f0, f1, f2, f3, l0, l1, l2, l3, dim)
+                        if blend:
+                            qe += t1 * _eval_s(dq, j, f0, f1, f2, f3, l0, l1, l2, l3, dim)
+                        ak[j] += 0.5 * h * (qv[j] + qe)
+                elif has_q and blend:  # the end's cell is not local: its time at the start
+                    for j in range(kq):
+                        qe = _eval_s(q, j, d0, d1, d2, d3, b0, b1, b2, b3, dim)
+                        qe += t1 * _eval_s(dq, j, d0, d1, d2, d3, b0, b1, b2, b3, dim)
                         ak[j] += 0.5 * h * (qv[j] + qe)
                 elif has_q:
                     for j in range(kq):

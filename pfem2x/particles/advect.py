@@ -67,6 +67,8 @@ def advect(
     source_field: str | None = None,
     source_scale: float = 1.0,
     sort: bool = True,
+    velocity_end: VelocityLike | None = None,
+    source_end: SourceLike | None = None,
 ) -> LocateStats:
     """Move every particle over one time step ``dt`` (collective).
 
@@ -100,7 +102,9 @@ def advect(
         Function / nodal array ``(ndofs, k)`` is integrated per component
         into a field ``source_field`` of shape ``(k,)``.
     sort:
-        Sort the particles by cell first (faster kernel; cheap).
+        Sort the particles by cell first (faster kernel).
+    velocity_end, source_end:
+        P1, ``theta = 0``: the values at ``t + dt``, the fields linear in time between.
 
     Returns
     -------
@@ -112,19 +116,16 @@ def advect(
     inp = _inputs(
         cloud.pmesh, velocity, velocity_next, theta, courant, substeps, source, source_field
     )
-    kq = inp.q.shape[1]
-    _check_source_field(cloud, source, source_field, kq)
-    _add_work_fields(cloud, dt, kq)
-    params = K.MoveParams(
-        float(dt), float(theta), float(courant), float(gradient_courant), inp.nsub, inp.has_q
-    )
+    inp = _blend_inputs(cloud.pmesh, inp, velocity_end, source_end, theta)
+    _check_source_field(cloud, source, source_field, inp.q.shape[1])
+    _add_work_fields(cloud, dt, inp.q.shape[1])
+    params = _params(inp, dt, theta, courant, gradient_courant)
     stats = LocateStats()
     try:
-        while True:
+        more = True
+        while more:
             status = _move_round(cloud, inp, params, t, dt, theta, courant, gradient_courant, stats)
             more, _ = resolve(cloud, status, stats)
-            if not more:
-                break
         if source is not None:
             _accumulate(cloud, source_field, source_scale)
     finally:
@@ -132,6 +133,12 @@ def advect(
             cloud.remove_field(name)
     cloud.invalidate_order()
     return stats
+
+
+def _params(inp: _Inputs, dt: float, theta: float, courant: float, gcourant: float) -> K.MoveParams:
+    """The kernel's parameters of one move."""
+    f = float
+    return K.MoveParams(f(dt), f(theta), f(courant), f(gcourant), inp.nsub, inp.has_q, inp.blend)
 
 
 def _accumulate(cloud: Cloud, source_field: str, scale: float) -> None:
@@ -159,7 +166,9 @@ class _Inputs(NamedTuple):
 
     ``un`` / ``q`` are placeholders (zeros) when the velocity / source is a
     callable (``vel_call`` / ``src_call``); ``q`` is ``(ndofs, k)`` (``k = 1``: a
-    scalar source); ``un1`` is one only without ``theta``.
+    scalar source); ``un1`` is one only without ``theta``. With ``blend`` the
+    velocity and the source change by ``du`` / ``dq`` over the step (else
+    placeholders).
     """
 
     velocity: Any
@@ -171,6 +180,9 @@ class _Inputs(NamedTuple):
     src_call: bool
     has_q: bool
     nsub: int
+    du: np.ndarray = np.zeros((1, 1))
+    dq: np.ndarray = np.zeros((1, 1))
+    blend: bool = False
 
 
 def _inputs(
@@ -201,6 +213,32 @@ def _inputs(
     if source is not None and source_field is None:
         raise ValueError("source needs source_field")
     return _Inputs(velocity, un, un1, vel_call, source, q, src_call, has_q, nsub)
+
+
+def _blend_inputs(
+    pm: ParticleMesh,
+    inp: _Inputs,
+    velocity_end: VelocityLike | None,
+    source_end: SourceLike | None,
+    theta: float,
+) -> _Inputs:
+    """``inp`` with the changes over the step of the velocity and the source (``blend``).
+
+    ``inp`` itself without ``velocity_end`` and ``source_end``.
+    """
+    if velocity_end is None and source_end is None:
+        return inp
+    if inp.vel_call or inp.src_call or theta > 0.0:
+        raise ValueError("velocity_end / source_end need P1 velocity and source and theta = 0")
+    un = inp.un
+    du = np.zeros_like(un) if velocity_end is None else nodal_values(pm, velocity_end, pm.gdim) - un
+    if source_end is None:
+        dq = np.zeros_like(inp.q)
+    elif not inp.has_q:
+        raise ValueError("source_end needs source")
+    else:
+        dq = nodal_values(pm, source_end, inp.q.shape[1]) - inp.q
+    return inp._replace(du=np.ascontiguousarray(du), dq=np.ascontiguousarray(dq), blend=True)
 
 
 def _add_work_fields(cloud: Cloud, dt: float, k: int = 1) -> None:
@@ -245,7 +283,7 @@ def _p1_pass(
         st2,
     )
     pm = cloud.pmesh
-    stats.substeps += K.advect_p1(state, inp.un, inp.un1, inp.q, params, pm.arrays)
+    stats.substeps += K.advect_p1(state, inp.un, inp.un1, inp.du, inp.q, inp.dq, params, pm.arrays)
     stage[parked] = K.STAGE_PATH
     if general:
         busy = status == K.ST_OK

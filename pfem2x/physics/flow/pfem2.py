@@ -134,7 +134,7 @@ key                                 effect in this frame
 ``flow.explicit_pressure``          step 1: ``consistent`` (solved from :math:`u^n`) or ``lagged``
 ``flow.correction``                 ``velocity`` or ``momentum`` (step 3)
 ``flow.extra_pass``                 step 6 of the paper (second pass, :math:`\theta = 1/2`)
-``flow.pass_splits``                the second pass's move in time-blended parts (:mod:`.passes`)
+``flow.pass_splits``                the second pass's move: one, linear in time, or m parts
 ``flow.predictor``                  the first pass: ``extrapolated`` or ``euler``
 ``flow.viscous_step``               the second pass's viscous predictor: ``sdirk2`` or ``euler``
 ``flow.pass_pressure``              the second pass's end source: ``increment`` or ``consistent``
@@ -218,7 +218,7 @@ class LagrangianFlow(TwoPasses, ParticleCapillary, ParticleTransfers, FlowSolver
             pr.two_phase and fl.light_source == "gravity" and not self.gravity_only
         )
         self.extra_pass = bool(fl.extra_pass)
-        #: the passes' moves in this many time-blended parts (flow.pass_splits, .passes)
+        #: the second pass's move linear in time (0) or in m parts (flow.pass_splits, .passes)
         self.pass_splits = int(fl.pass_splits)
         #: the second pass's viscous predictor by the two-stage SDIRK (flow.viscous_step)
         self.viscous_sdirk = fl.viscous_step == "sdirk2"
