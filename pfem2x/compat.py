@@ -385,6 +385,31 @@ def set_bc(vec: Any, bcs: list) -> None:
         dolfinx.fem.petsc.set_bc(vec, bcs)
 
 
+def lift(b: Any, a: Any, bcs: list) -> None:
+    """``b -= A[:, bc] g``: the Dirichlet values' columns of the form ``a`` (ghosts summed).
+
+    ``b``'s owned entries are kept; its ghost entries are overwritten.
+    """
+    with b.localForm() as loc:
+        loc.array[b.getLocalSize() :] = 0.0
+    dolfinx.fem.petsc.apply_lifting(b, [a], bcs=[bcs])
+    b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+
+
+def dirichlet_rows(vec: Any, bcs: list) -> np.ndarray:
+    """The owned entries of ``vec``'s layout that ``bcs`` set (a bool mask)."""
+    a, b, one = vec.duplicate(), vec.duplicate(), vec.duplicate()
+    a.set(0.0)
+    b.set(0.0)
+    one.set(1.0)
+    dolfinx.fem.petsc.set_bc(a, bcs)
+    dolfinx.fem.petsc.set_bc(b, bcs, one)  # g - 1 on those rows (x0 = 1)
+    mask = (a.array_r - b.array_r) == 1.0
+    for v in (a, b, one):
+        v.destroy()
+    return mask
+
+
 def constant_nullspace(A: Any) -> Any:
     """Attach the constant null space to ``A`` (pure-Neumann pressure); returns it."""
     ns = PETSc.NullSpace().create(constant=True, comm=A.getComm())

@@ -466,12 +466,12 @@ def _check_flow(s: dict[str, dict[str, Any]]) -> None:
     if frame not in ("eulerian", "lagrangian"):
         raise SceneError(f"method.frame: the {frame!r} flow frame is not available yet")
     sides = {side: fl[side] or fl["walls"] for side in FLOW_SIDES[:4]}  # 2D: the box sides
-    if frame == "lagrangian":
+    if frame == "lagrangian" and s["effects"]["two_phase"]:
         for side, kind in sides.items():
             if kind not in ("slip", "noslip"):
                 raise SceneError(
                     f"flow.{side if fl[side] else 'walls'}: {kind!r} sides are not available "
-                    "in the lagrangian flow frame yet (slip, noslip)"
+                    "in the lagrangian flow frame with two phases yet (slip, noslip)"
                 )
     if m["kind"] in ("interval", "box"):
         raise SceneError("mesh.kind: flow is available on 2D meshes only (for now)")

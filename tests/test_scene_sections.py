@@ -26,6 +26,13 @@ FLOW = {
     "time": {"t_end": 0.1, "dt": 0.05},
 }
 
+#: two phases (the lagrangian frame's open sides need one)
+TWO = {
+    **FLOW,
+    "effects": {"gravity": True, "two_phase": True},
+    "phases": {"water": {"density": 1000, "region": "y < 0.5"}, "air": {"density": 1}},
+}
+
 
 def _with(base, **sections):
     raw = copy.deepcopy(base)
@@ -155,13 +162,13 @@ CROSS = {
     "flow_periodic": (_with(FLOW, mesh={"periodic": [True, False]}), "mesh.periodic"),
     "flow_characteristic": (_with(FLOW, method={"frame": "characteristic"}), "method.frame"),
     "flow_inflow_without_velocity": (_with(FLOW, flow={"left": "inflow"}), "flow.inflow_velocity"),
-    "lagrangian_flow_outflow_side": (
-        _with(FLOW, method={"frame": "lagrangian"}, flow={"right": "outflow"}),
+    "lagrangian_two_phase_outflow_side": (
+        _with(TWO, method={"frame": "lagrangian"}, flow={"right": "outflow"}),
         "flow.right",
     ),
-    "lagrangian_flow_inflow_walls": (
+    "lagrangian_two_phase_inflow_walls": (
         _with(
-            FLOW,
+            TWO,
             method={"frame": "lagrangian"},
             flow={"walls": "inflow", "inflow_velocity": ["1", "0"]},
         ),

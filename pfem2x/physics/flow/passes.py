@@ -175,7 +175,7 @@ class TwoPasses:
         c = (1.0 - g) / g
         r2 = (1.0 - c) * self.u_hat.x.array[:n] + c * self.u_star.x.array[:n]
         self.b_m.array[:] = self._diag.array_r * r2
-        compat.set_bc(self.b_m, self._bcs_u)
+        self._set_viscous_bc()
         with self.timer("solve"):
             it += self.m_solver.solve(self.b_m, compat.petsc_vec(self.u_star))
             self.u_star.x.scatter_forward()

@@ -153,12 +153,16 @@ key                                 effect in this frame
 
 Ignored here: ``method.theta``, ``method.supg``, ``flow.interface_width``,
 ``flow.reinit_every``, ``flow.quadrature_degree`` (the forms are integrated
-exactly: DG0 coefficients, P1 fields), ``flow.inflow_velocity``,
+exactly: DG0 coefficients, P1 fields),
 ``flow.volume_correction`` (with gravity the level set ``dist`` always keeps the
 phase volume, step 2).
 
-Limitations: box sides ``slip`` / ``noslip`` only (inflow / outflow need
-particle seeding and deletion at the boundary, not wired yet); 2D.
+Open sides (one phase): particles that leave through an ``outflow`` side are
+deleted in the move; after each move the cells on an ``inflow`` side are topped up
+to ``method.particles_per_cell`` with particles carrying ``flow.inflow_velocity``
+(:meth:`LagrangianFlow._seed_inflow`), and the viscous predictor lifts the inflow
+values through its operator. Limitations: two phases with box sides ``slip`` /
+``noslip`` only; 2D.
 """
 
 from __future__ import annotations
@@ -174,6 +178,7 @@ from pfem2x.compat import MPI, PETSc
 from pfem2x.mesh import Domain
 from pfem2x.physics.flow.balanced import JumpForce
 from pfem2x.physics.flow.interface import positive_fraction
+from pfem2x.physics.flow.open_sides import OpenSides
 from pfem2x.physics.flow.passes import SDIRK_GAMMA, TwoPasses
 from pfem2x.physics.flow.pfem2_capillary import ParticleCapillary
 from pfem2x.physics.flow.problem import FlowSolver
@@ -184,7 +189,7 @@ from pfem2x.scene import Scene
 __all__ = ["LagrangianFlow"]
 
 
-class LagrangianFlow(TwoPasses, ParticleCapillary, ParticleTransfers, FlowSolver):
+class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers, FlowSolver):
     """PFEM-2 fractional-step NS with particle velocity and sharp particle phase.
 
     See the module docstring for the step. Diagnostics are those of
@@ -203,6 +208,7 @@ class LagrangianFlow(TwoPasses, ParticleCapillary, ParticleTransfers, FlowSolver
 
     def __init__(self, scene: Scene, domain: Domain):
         super().__init__(scene, domain)
+        self._update_inflow(0.0)  # (the inflow sides' values, before u gets its conditions)
         pr = self.problem
         fl = scene.flow
         mesh = domain.mesh
@@ -292,7 +298,9 @@ class LagrangianFlow(TwoPasses, ParticleCapillary, ParticleTransfers, FlowSolver
             fields["grad_u"] = (self.gdim**2,)  # C_p = grad u at the particle (row-major)
             # work field: (u - C x, C) of each particle (times rho, and rho, mass-weighted)
             fields["_aff"] = (self.gdim + self.gdim**2 + int(self.mass_weighted),)
-        self.cloud_ = P.Cloud(self.domain, fields)
+        self.cloud_ = P.Cloud(
+            self.domain, fields, outflow=self._sides("outflow"), inflow=self._sides("inflow")
+        )
         # nodal (sum w rho u, sum w rho) / sum w of the mass-weighted projection
         self._mom_nodes = np.zeros((len(self.coords), self.gdim + 1))
         self._mom_nodes[:, -1] = 1.0
@@ -372,6 +380,7 @@ class LagrangianFlow(TwoPasses, ParticleCapillary, ParticleTransfers, FlowSolver
                 L_pc = L_pc + (1.0 / self.rho) * ufl.dot(f_body, ufl.grad(r)) * dx
             self.L_pc = compat.form(L_pc)
         self.b_m = compat.create_vector(self.projection.L_mass)
+        self._bc_rows: np.ndarray | None = None  # (owned rows set by the velocity's conditions)
         self._diag = compat.create_vector(self.projection.L_mass)
 
     # -- phase / density --------------------------------------------------------
@@ -561,9 +570,13 @@ class LagrangianFlow(TwoPasses, ParticleCapillary, ParticleTransfers, FlowSolver
         else:
             self.K.copy(self.A_m, PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
         self._diag.array[:] = b_mass.array_r / dt
+        if self._inflow is not None:  # rows of the non-zero Dirichlet values: identity
+            if self._bc_rows is None:
+                self._bc_rows = compat.dirichlet_rows(self._diag, self._bcs_u)
+            self._diag.array[self._bc_rows] = 0.0
         self.A_m.setDiagonal(self._diag, addv=PETSc.InsertMode.ADD_VALUES)
         self.b_m.array[:] = self._diag.array_r * self.u_hat.x.array[:n]
-        compat.set_bc(self.b_m, self._bcs_u)
+        self._set_viscous_bc()
         if self.m_solver is None:
             self.m_solver = fem.LinearSolver(self.A_m, "cg", "jacobi", rtol=self.problem.rtol)
         else:
@@ -576,6 +589,7 @@ class LagrangianFlow(TwoPasses, ParticleCapillary, ParticleTransfers, FlowSolver
                 self._move(dt, theta)
             else:
                 self._blended_move(dt, *blend)
+            self._seed_inflow()
             self._project_velocity()
             self._update_phase_fields()
         self._mesh_step(dt)
@@ -615,6 +629,8 @@ class LagrangianFlow(TwoPasses, ParticleCapillary, ParticleTransfers, FlowSolver
 
     def step(self, t: float, dt: float) -> None:
         self.dt_c.value = dt
+        self._t_next = t + dt
+        self._update_inflow(t + dt)
         if self.consistent_pressure:
             self._consistent_pressure()
         c = self.cloud_

@@ -1,0 +1,85 @@
+"""Open box sides of the PFEM-2 flow frame: ``inflow`` and ``outflow`` (one phase).
+
+A mixin of :class:`~pfem2x.physics.flow.pfem2.LagrangianFlow` (its attributes:
+``cloud_``, ``domain``, ``gdim``, ``problem``, ``scene``, ``b_m``, ``a_K``,
+``_bcs_u``, ``_inflow``, ``_t_next``, ``_inflow_seed``).
+
+Particles that leave through an ``outflow`` side are deleted in the move (the
+cloud's outflow facets, :func:`_sides`); after each move the cells on an ``inflow``
+side are topped up to ``method.particles_per_cell`` with particles carrying
+``flow.inflow_velocity`` (:meth:`OpenSides._seed_inflow`); the viscous predictor's
+right-hand side lifts the inflow values through its operator
+(:meth:`OpenSides._set_viscous_bc`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from pfem2x import compat
+from pfem2x import particles as P
+from pfem2x.scene import FLOW_SIDES
+
+__all__ = ["OpenSides"]
+
+
+class OpenSides:
+    """Inflow seeding, outflow markers and the lifted viscous right-hand side."""
+
+    cloud_: Any
+    domain: Any
+    gdim: int
+    problem: Any
+    scene: Any
+    b_m: Any
+    a_K: Any
+    _bcs_u: list
+    _inflow: Any
+    #: the end of the current step (the inflow values of new particles)
+    _t_next: float = 0.0
+    #: inflow seedings so far (their random seeds)
+    _inflow_seed: int = 0
+
+    def _sides(self, kind: str) -> Any:
+        """A facet marker of the box sides of ``kind`` (``inflow``, ``outflow``), or None."""
+        lo, hi = self.domain.bounds
+        tol = 1e-8 * float(np.max(hi - lo))
+        sel = [
+            (k // 2, (lo if k % 2 == 0 else hi)[k // 2])
+            for k, side in enumerate(FLOW_SIDES[: 2 * self.gdim])
+            if self.problem.sides[side] == kind
+        ]
+        if not sel:
+            return None
+        return lambda x: np.any([np.abs(x[:, a] - v) < tol for a, v in sel], axis=0)
+
+    def _seed_inflow(self) -> None:
+        """Cells on inflow sides topped up to ``particles_per_cell`` with the inflow velocity.
+
+        The new particles take ``flow.inflow_velocity`` at their positions and the end
+        of the step (``_t_next``); the move has carried the old ones inwards.
+        """
+        if self._inflow is None:
+            return
+        exprs, t = self.problem.inflow_velocity, self._t_next
+
+        def u_in(x: np.ndarray) -> np.ndarray:
+            x3 = np.zeros((len(x), 3))
+            x3[:, : self.gdim] = x
+            return np.stack([np.broadcast_to(e(x3, t), len(x)) for e in exprs], axis=1)
+
+        self._inflow_seed += 1
+        P.seed_inflow(
+            self.cloud_,
+            self.scene.method.particles_per_cell,
+            {"u": u_in},
+            seed=self.scene.method.seed + 7919 * self._inflow_seed,
+        )
+
+    def _set_viscous_bc(self) -> None:
+        """The Dirichlet values into ``b_m`` (lifted through ``K`` with an inflow side)."""
+        if self._inflow is not None:
+            compat.lift(self.b_m, self.a_K, self._bcs_u)
+        compat.set_bc(self.b_m, self._bcs_u)
