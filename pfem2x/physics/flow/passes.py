@@ -18,7 +18,7 @@ each with the blend frozen at its middle, one call of the move kernel each
 :math:`\tfrac12(a^n + a^{(1)})` for the whole step). The one move is the limit
 :math:`m \to \infty` at the cost of about one part: Rayleigh–Taylor 100 × 400 at
 Courant 8, largest tip difference to the Courant 0.5 run up to :math:`\tau = 2.5`,
-0.0098 d against 0.0109 d with :math:`m = 4`, 13 % less CPU time per run.
+0.0100 d against 0.0108 d with :math:`m = 4`, 5 % less CPU time per run.
 
 ``flow.predictor`` sets the first pass. ``"euler"`` (the paper's step 6): a
 :math:`\theta = 0` pass along :math:`u^n` with the source :math:`a^n`.
@@ -32,7 +32,7 @@ tip difference to the Courant 0.5 run up to :math:`\tau = 2.5`: 0.029 d with
 ``"euler"`` and :math:`m = 1`, 0.013 d with ``"extrapolated"`` and :math:`m = 2`,
 0.0096 d with :math:`m = 4` (17 % more CPU time than the first), all three with
 backward Euler in the second pass; 0.0108 d with :math:`m = 4` and the SDIRK predictor
-below, 0.0098 d with the defaults (docs/RESULTS.md, "Where PFEM-2's Δt error comes
+below, 0.0100 d with the defaults (docs/RESULTS.md, "Where PFEM-2's Δt error comes
 from").
 
 The second pass's viscous predictor (``flow.viscous_step = "sdirk2"``) is the two-stage
