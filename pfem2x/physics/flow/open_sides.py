@@ -7,7 +7,8 @@ A mixin of :class:`~pfem2x.physics.flow.pfem2.LagrangianFlow` (its attributes:
 Particles that leave through an ``outflow`` side are deleted in the move (the
 cloud's outflow facets, :func:`_sides`); after each move the cells on an ``inflow``
 side are topped up to ``method.particles_per_cell`` with particles carrying
-``flow.inflow_velocity`` (:meth:`OpenSides._seed_inflow`); the viscous predictor's
+``flow.inflow_velocity`` (:meth:`OpenSides._seed_inflow`), and so are the cells within
+one step's inflow travel of it (:meth:`OpenSides._inflow_band`); the viscous predictor's
 right-hand side lifts the inflow values through its operator
 (:meth:`OpenSides._set_viscous_bc`).
 """
@@ -20,6 +21,7 @@ import numpy as np
 
 from pfem2x import compat
 from pfem2x import particles as P
+from pfem2x.compat import MPI
 from pfem2x.scene import FLOW_SIDES
 
 __all__ = ["OpenSides"]
@@ -41,6 +43,12 @@ class OpenSides:
     _t_next: float = 0.0
     #: inflow seedings so far (their random seeds)
     _inflow_seed: int = 0
+    #: the current step
+    _dt_step: float = 0.0
+    comm: Any
+    H: float
+    cell_xy: np.ndarray
+    u: Any
 
     def _sides(self, kind: str) -> Any:
         """A facet marker of the box sides of ``kind`` (``inflow``, ``outflow``), or None."""
@@ -71,12 +79,35 @@ class OpenSides:
             return np.stack([np.broadcast_to(e(x3, t), len(x)) for e in exprs], axis=1)
 
         self._inflow_seed += 1
-        P.seed_inflow(
-            self.cloud_,
-            self.scene.method.particles_per_cell,
-            {"u": u_in},
-            seed=self.scene.method.seed + 7919 * self._inflow_seed,
-        )
+        ppc, seed = self.scene.method.particles_per_cell, self.scene.method.seed
+        P.seed_inflow(self.cloud_, ppc, {"u": u_in}, seed=seed + 7919 * self._inflow_seed)
+        band = self._inflow_band()
+        if band is not None:
+            P.rebalance(
+                self.cloud_, ppc, 0, seed=seed + 7919 * self._inflow_seed + 1,
+                fallback={"u": self.u}, cells=band,
+            )  # fmt: skip
+
+    def _inflow_band(self) -> np.ndarray | None:
+        """Owned cells within one step's inflow travel of an inflow side (a bool mask).
+
+        The cells behind the first layer that the particles of the inflow have crossed
+        in this step (the largest inflow speed times the step, plus a cell); None
+        when the band is the first layer only.
+        """
+        u_in = self._inflow.x.array.reshape(-1, self.gdim)
+        reach = float(np.sqrt((u_in**2).sum(axis=1)).max(initial=0.0)) * self._dt_step
+        reach = float(self.comm.allreduce(reach, op=MPI.MAX))
+        if reach <= self.H:
+            return None
+        lo, hi = self.domain.bounds
+        centre = self.cell_xy.mean(axis=1)
+        band = np.zeros(len(centre), dtype=bool)
+        for k, side in enumerate(FLOW_SIDES[: 2 * self.gdim]):
+            if self.problem.sides[side] == "inflow":
+                a, v = k // 2, (lo if k % 2 == 0 else hi)[k // 2]
+                band |= np.abs(centre[:, a] - v) < reach + self.H
+        return band
 
     def _set_viscous_bc(self) -> None:
         """The Dirichlet values into ``b_m`` (lifted through ``K`` with an inflow side)."""

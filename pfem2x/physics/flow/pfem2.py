@@ -160,7 +160,8 @@ phase volume, step 2).
 Open sides (one phase): particles that leave through an ``outflow`` side are
 deleted in the move; after each move the cells on an ``inflow`` side are topped up
 to ``method.particles_per_cell`` with particles carrying ``flow.inflow_velocity``
-(:meth:`LagrangianFlow._seed_inflow`), and the viscous predictor lifts the inflow
+(:meth:`LagrangianFlow._seed_inflow`; so are the cells within one step's inflow
+travel of it), and the viscous predictor lifts the inflow
 values through its operator. Limitations: two phases with box sides ``slip`` /
 ``noslip`` only; 2D.
 """
@@ -630,6 +631,7 @@ class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers,
     def step(self, t: float, dt: float) -> None:
         self.dt_c.value = dt
         self._t_next = t + dt
+        self._dt_step = dt
         self._update_inflow(t + dt)
         if self.consistent_pressure:
             self._consistent_pressure()
