@@ -50,15 +50,20 @@ class OpenSides:
     cell_xy: np.ndarray
     u: Any
 
-    def _sides(self, kind: str) -> Any:
-        """A facet marker of the box sides of ``kind`` (``inflow``, ``outflow``), or None."""
+    def _planes(self, kind: str) -> list[tuple[int, float]]:
+        """``(axis, coordinate)`` of each box side of ``kind`` (``inflow``, ``outflow``)."""
         lo, hi = self.domain.bounds
-        tol = 1e-8 * float(np.max(hi - lo))
-        sel = [
+        return [
             (k // 2, (lo if k % 2 == 0 else hi)[k // 2])
             for k, side in enumerate(FLOW_SIDES[: 2 * self.gdim])
             if self.problem.sides[side] == kind
         ]
+
+    def _sides(self, kind: str) -> Any:
+        """A facet marker of the box sides of ``kind`` (``inflow``, ``outflow``), or None."""
+        lo, hi = self.domain.bounds
+        tol = 1e-8 * float(np.max(hi - lo))
+        sel = self._planes(kind)
         if not sel:
             return None
         return lambda x: np.any([np.abs(x[:, a] - v) < tol for a, v in sel], axis=0)
@@ -100,13 +105,10 @@ class OpenSides:
         reach = float(self.comm.allreduce(reach, op=MPI.MAX))
         if reach <= self.H:
             return None
-        lo, hi = self.domain.bounds
         centre = self.cell_xy.mean(axis=1)
         band = np.zeros(len(centre), dtype=bool)
-        for k, side in enumerate(FLOW_SIDES[: 2 * self.gdim]):
-            if self.problem.sides[side] == "inflow":
-                a, v = k // 2, (lo if k % 2 == 0 else hi)[k // 2]
-                band |= np.abs(centre[:, a] - v) < reach + self.H
+        for a, v in self._planes("inflow"):
+            band |= np.abs(centre[:, a] - v) < reach + self.H
         return band
 
     def _set_viscous_bc(self) -> None:

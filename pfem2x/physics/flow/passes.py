@@ -240,6 +240,10 @@ class TwoPasses:
             velocity_end=self.u.x.array.reshape(-1, gd),
             source_end=a1.reshape(-1, gd),
         )
+        self._count_substeps(stats)
+
+    def _count_substeps(self, stats: Any) -> None:
+        """``path_substeps``: the move's sub-steps per particle, over all ranks (collective)."""
         n = float(self.comm.allreduce(float(self.cloud_.n), op=MPI.SUM))
         steps = float(self.comm.allreduce(float(stats.substeps), op=MPI.SUM))
         self.path_substeps = max(1, round(steps / max(n, 1.0)))

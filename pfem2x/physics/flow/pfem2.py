@@ -492,9 +492,7 @@ class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers,
             f[c.field("phase") < 0.5] = dt * np.asarray(self.problem.gravity)
             c.field("u")[:] += f
             c.remove_field("_kick")
-        n = float(self.comm.allreduce(float(c.n), op=MPI.SUM))
-        steps = float(self.comm.allreduce(float(stats.substeps), op=MPI.SUM))
-        self.path_substeps = max(1, round(steps / max(n, 1.0)))
+        self._count_substeps(stats)
 
     def _kick(self, h: float) -> None:
         r"""``u_p += h a(x_p)``, the explicit source of step 1.
