@@ -420,7 +420,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "consistent",
             doc="PFEM-2, pressure_step = increment: the pressure in the particles' explicit "
             "source: consistent = solved each step from u^n (div(grad(p)/rho) = div(f/rho) - "
-            "grad(u):grad(u)^T), lagged = the last step's p^n",
+            "grad(u):grad(u)^T, + div(nu lap(u)) with one viscous phase), lagged = the last "
+            "step's p^n",
         ),
         "pressure_step": Key(
             choice("increment", "total"),

@@ -8,9 +8,10 @@ Particles that leave through an ``outflow`` side are deleted in the move (the
 cloud's outflow facets, :func:`_sides`); after each move the cells on an ``inflow``
 side are topped up to ``method.particles_per_cell`` with particles carrying
 ``flow.inflow_velocity`` (:meth:`OpenSides._seed_inflow`), and so are the cells within
-one step's inflow travel of it (:meth:`OpenSides._inflow_band`); the viscous predictor's
-right-hand side lifts the inflow values through its operator
-(:meth:`OpenSides._set_viscous_bc`).
+one step's inflow travel of it (:meth:`OpenSides._inflow_band`), where the particles whose
+path of the step came in through the side take the inflow velocity where it crossed plus
+the source since (:meth:`OpenSides._trace_inflow`); the viscous predictor's right-hand
+side lifts the inflow values through its operator (:meth:`OpenSides._set_viscous_bc`).
 """
 
 from __future__ import annotations
@@ -49,6 +50,7 @@ class OpenSides:
     H: float
     cell_xy: np.ndarray
     u: Any
+    force: Any
 
     def _planes(self, kind: str) -> list[tuple[int, float]]:
         """``(axis, coordinate)`` of each box side of ``kind`` (``inflow``, ``outflow``)."""
@@ -92,6 +94,38 @@ class OpenSides:
                 self.cloud_, ppc, 0, seed=seed + 7919 * self._inflow_seed + 1,
                 fallback={"u": self.u}, cells=band,
             )  # fmt: skip
+            self._trace_inflow(band, u_in)
+
+    def _trace_inflow(self, band: np.ndarray, u_in: Any) -> None:
+        """Particles of the band whose path of this step came in through an inflow side.
+
+        A particle at ``x`` with velocity ``u`` whose straight path back over the step
+        crosses an inflow side (inward normal speed ``u_n > 0``, distance ``d < u_n dt``)
+        entered during the step: it takes the inflow velocity where that path crosses
+        the side, found by two fixed-point updates of ``u`` (exact for a parallel
+        inflow). The values of the band's new particles are otherwise fits of their
+        neighbours', whose repeated re-fitting would smooth the inflow profile.
+        """
+        c = self.cloud_
+        sel = np.flatnonzero(band[c.cells])
+        if len(sel) == 0:
+            return
+        x, u = c.x[sel], c.field("u")[sel]
+        acc = P.evaluate(c, self.force)[sel]  # the explicit source since the crossing
+        lo = self.domain.bounds[0]
+        for a, v in self._planes("inflow"):
+            inward = 1.0 if v == lo[a] else -1.0
+            d = (x[:, a] - v) * inward
+            vals = u.copy()
+            for _ in range(2):
+                un = np.maximum(vals[:, a] * inward, 1e-300)
+                foot = x - vals * (d / un)[:, None]
+                foot[:, a] = v
+                vals = u_in(foot)
+            un = vals[:, a] * inward
+            hit = (un > 0.0) & (d < un * self._dt_step)
+            u[hit] = vals[hit] + (d[hit] / un[hit])[:, None] * acc[hit]
+        c.field("u")[sel] = u
 
     def _inflow_band(self) -> np.ndarray | None:
         """Owned cells within one step's inflow travel of an inflow side (a bool mask).

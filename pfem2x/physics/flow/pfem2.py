@@ -21,7 +21,9 @@ motion alone (no convective term is ever assembled). One step
    Its pressure (``flow.explicit_pressure = "consistent"``) is solved from
    :math:`u^n` at the start of the step,
    :math:`\nabla\cdot(\rho^{-1}\nabla p^n) = \nabla\cdot(\rho^{-1}f) - \nabla u^n : (\nabla u^n)^T`
-   (the pressure of a divergence-free velocity; hydrostatic at rest), instead of
+   (the pressure of a divergence-free velocity; hydrostatic at rest; with one
+   viscous phase the right-hand side also has :math:`\nu\Delta u^n = -\nu\nabla\times\omega_h`,
+   :mod:`.vorticity`, whose boundary terms give a channel its :math:`dp/dx = \mu u''`), instead of
    the last step's :math:`p^n` (``"lagged"``), which starts from 0 and, the
    pressure step correcting only the divergence, does not follow a decaying
    vortex: Taylor–Green at Courant 8 (32 × 32) 0.0036 against 0.042
@@ -95,25 +97,23 @@ of the step to the first pass's end (``flow.pass_splits``), the first pass being
 second pass's viscous predictor second order in :math:`\Delta t`
 (``flow.viscous_step``): :mod:`pfem2x.physics.flow.passes`.
 
-Operators per step (``fem.COUNTERS``): 1 matrix assembly (pressure; +1 for
-the viscous matrix when the phases' viscosities differ), 4 vector
-assemblies (lumped mass, pressure right-hand side, correction, source
-:math:`a`), 2 solves (viscous predictor, pressure; 1 without viscosity);
-twice that with ``flow.extra_pass`` (+1 solve: the second pass's two-stage
-viscous predictor); once per step +2 vectors (right-hand
-side, source :math:`a`) and +1 solve for the consistent pressure (twice that with
-``flow.pass_pressure = "consistent"``); +1 vector
-(the heavy phase's source) with ``flow.light_source = "gravity"``.
+Operators per step (``fem.COUNTERS``): 1 matrix assembly (pressure; +1 for the viscous
+matrix when the phases' viscosities differ), 4 vector assemblies (lumped mass, pressure
+right-hand side, correction, source :math:`a`), 2 solves (viscous predictor, pressure; 1
+without viscosity); twice that with ``flow.extra_pass`` (+1 solve: the second pass's
+two-stage viscous predictor); once per step +2 vectors (right-hand side, source :math:`a`;
++1, the vorticity, with one viscous phase) and +1 solve for the consistent pressure (twice
+that with ``flow.pass_pressure = "consistent"``); +1 vector (the heavy phase's source) with
+``flow.light_source = "gravity"``.
 Large density ratios (dam break, 1000): ``flow.pressure_step = "total"``,
-``flow.pic_fraction_light = 1``, ``flow.affine = true`` and
-``flow.mass_weighted = true`` (see :meth:`LagrangianFlow._kick`,
-:meth:`LagrangianFlow._project_velocity`). They are not the defaults: no one
-set serves the dam break and Rayleigh–Taylor (docs/RESULTS.md, "Dam break":
-the incremental pressure with the full explicit source diverges at ratio 1000,
-its second pass's source from :math:`p^n + \delta p^{(1)}` throwing the air
-around; with ``flow.pass_pressure = "consistent"`` it runs but loses 3–4 % of the
-water; the total pressure puts Rayleigh–Taylor's heavy volume off by 2.6 %, the light
-phase's gravity-only source stalls its spikes).
+``flow.pic_fraction_light = 1``, ``flow.affine = true`` and ``flow.mass_weighted = true``
+(see :meth:`LagrangianFlow._kick`, :meth:`LagrangianFlow._project_velocity`). They are not
+the defaults: no one set serves the dam break and Rayleigh–Taylor (docs/RESULTS.md, "Dam
+break": the incremental pressure with the full explicit source diverges at ratio 1000, its
+second pass's source from :math:`p^n + \delta p^{(1)}` throwing the air around; with
+``flow.pass_pressure = "consistent"`` it runs but loses 3–4 % of the water; the total
+pressure puts Rayleigh–Taylor's heavy volume off by 2.6 %, the light phase's gravity-only
+source stalls its spikes).
 
 Scene keys this frame reads (besides the problem's: ``flow.gravity``, the
 sides, ``initial_velocity``, ``velocity_scale``, ``time_factor``,
@@ -152,18 +152,17 @@ key                                 effect in this frame
 ==================================  =====================================================
 
 Ignored here: ``method.theta``, ``method.supg``, ``flow.interface_width``,
-``flow.reinit_every``, ``flow.quadrature_degree`` (the forms are integrated
-exactly: DG0 coefficients, P1 fields),
-``flow.volume_correction`` (with gravity the level set ``dist`` always keeps the
-phase volume, step 2).
+``flow.reinit_every``, ``flow.quadrature_degree`` (the forms are integrated exactly: DG0
+coefficients, P1 fields), ``flow.volume_correction`` (with gravity the level set ``dist``
+always keeps the phase volume, step 2).
 
-Open sides (one phase): particles that leave through an ``outflow`` side are
-deleted in the move; after each move the cells on an ``inflow`` side are topped up
-to ``method.particles_per_cell`` with particles carrying ``flow.inflow_velocity``
-(:meth:`LagrangianFlow._seed_inflow`; so are the cells within one step's inflow
-travel of it), and the viscous predictor lifts the inflow
-values through its operator. Limitations: two phases with box sides ``slip`` /
-``noslip`` only; 2D.
+Open sides (one phase, :mod:`.open_sides`): particles that leave through an ``outflow``
+side are deleted in the move; after each move the cells within one step's inflow travel
+of an ``inflow`` side are topped up to ``method.particles_per_cell``, and the particles
+there whose path of the step came in through the side take ``flow.inflow_velocity``
+where it crossed plus the source since; the viscous predictor lifts the inflow values
+through its operator. Limitations: two phases with box sides ``slip`` / ``noslip``
+only; 2D.
 """
 
 from __future__ import annotations
@@ -185,6 +184,7 @@ from pfem2x.physics.flow.pfem2_capillary import ParticleCapillary
 from pfem2x.physics.flow.problem import FlowSolver
 from pfem2x.physics.flow.projection import PressureProjection
 from pfem2x.physics.flow.transfers import ParticleTransfers
+from pfem2x.physics.flow.vorticity import RotationalViscousTerm
 from pfem2x.scene import Scene
 
 __all__ = ["LagrangianFlow"]
@@ -372,13 +372,16 @@ class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers,
                 a_h = a_h + (f_body / pr.phases[0][1] if self.jump is not None else g)
             self.L_fh = compat.form(ufl.dot(a_h, w) * dx)
             self.b_fh = compat.create_vector(self.L_fh)
-        self.L_pc: Any = None
+        self.L_pc, self.vort = None, None  # (and nu lap(u) = -nu curl(omega_h), one phase)
         if self.consistent_pressure:  # grad(u):grad(u)^T r + (f / rho).grad(r)
             r = ufl.TestFunction(self.Q)
             gu = ufl.grad(self.u)
             L_pc = ufl.inner(gu, ufl.transpose(gu)) * r * dx
             if grav:
                 L_pc = L_pc + (1.0 / self.rho) * ufl.dot(f_body, ufl.grad(r)) * dx
+            if self.viscous and not pr.two_phase:
+                self.vort = RotationalViscousTerm(self.u, self.mu / self.rho)
+                L_pc = L_pc + self.vort.term(r) * dx
             self.L_pc = compat.form(L_pc)
         self.b_m = compat.create_vector(self.projection.L_mass)
         self._bc_rows: np.ndarray | None = None  # (owned rows set by the velocity's conditions)
@@ -601,11 +604,11 @@ class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers,
         r"""``p`` from the velocity ``u^n`` and the body force, and the source ``a`` from it.
 
         The pressure Poisson equation of a divergence-free velocity,
-        :math:`\nabla\cdot(\rho^{-1}\nabla p) = \nabla\cdot(\rho^{-1} f) -
-        \nabla u : (\nabla u)^T` (natural conditions: on straight walls
+        :math:`\nabla\cdot(\rho^{-1}\nabla p) = \nabla\cdot(\rho^{-1} f + \nu\Delta u) -
+        \nabla u : (\nabla u)^T` (ν Δu in the rotational form of :mod:`.vorticity`,
+        one viscous phase only; natural conditions: on straight walls
         :math:`n\cdot(u\cdot\nabla u) = 0`), with the operator of the last
-        pressure step (the density has not changed since; re-assembled after a
-        restart). At rest it is the hydrostatic start. Collective.
+        pressure step (re-assembled after a restart). At rest: the hydrostatic start.
         """
         proj = self.projection
         if self._operator_stale:
@@ -613,6 +616,8 @@ class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers,
                 proj.assemble_operator()
                 proj.assemble_mass()
             self._operator_stale = False
+        if self.vort is not None:
+            self.vort.update()
         proj.solve(self.L_pc, self.p)
         with self.timer("assembly"):
             self._update_force()
