@@ -491,7 +491,8 @@ _DOCS = {
     "method.projection": "particles -> mesh: linear-exact weighted least squares, or the "
     "paper's shape-function average; auto = linear for scalar transport, average for the "
     "flow velocity (the linear fit passes the FLIP velocity's sub-cell noise on to the mesh: "
-    "Rayleigh-Taylor 100x400 diverged at Courant 4)",
+    "Rayleigh-Taylor 100x400 diverged at Courant 4), linear with an outflow side (the "
+    "average is biased on its one-sided nodes)",
     "method.substep_courant": "cells a particle may cross per X-IVAS sub-step",
     "method.substep_gradient": "also limit a sub-step h by h |grad u|_cell <= this "
     "(P1 velocities; the turning per sub-step; 0: off)",

@@ -188,11 +188,7 @@ class EulerianFlow(FlowSolver):
         h = ufl.CellDiameter(mesh)
         v, w = ufl.TrialFunction(V), ufl.TestFunction(V)
         conv = ufl.dot(ufl.grad(v), un)
-        a_m = (
-            rho / dt * ufl.dot(v, w)
-            + rho * ufl.dot(conv, w)
-            + 2.0 * mu * ufl.inner(ufl.sym(ufl.grad(v)), ufl.sym(ufl.grad(w)))
-        ) * dxq
+        a_m = (rho / dt * ufl.dot(v, w) + rho * ufl.dot(conv, w) + pr.viscous_form(mu, v, w)) * dxq
         # incremental: -grad(p^n) in the predictor; total: the pressure step finds all of p
         p_n = self.p if pr.incremental else compat.dolfinx.fem.Constant(mesh, PETSc.ScalarType(0))
         L_m = (rho / dt * ufl.dot(un, w) + p_n * ufl.div(w)) * dxq

@@ -31,7 +31,7 @@ motion alone (no convective term is ever assembled). One step
 2. **Project** :math:`\hat u_p` to the P1 nodes (``method.projection``; ``"auto"``
    is the paper's shape-function average: the linear-exact fit passes the
    FLIP velocity's sub-cell noise on to the mesh, and Rayleigh–Taylor at
-   100 × 400 diverged with it at Courant 4 by τ = 2.3) →
+   100 × 400 diverged with it at Courant 4 by τ = 2.3; the fit with an outflow side) →
    :math:`\hat u`. The density and viscosity are cell-wise constants (DG0)
    from each cell's phase-1 fraction: sharp within one cell, no smoothing
    band. With gravity (two phases) and ``flow.density = "level_set"`` (the
@@ -353,7 +353,7 @@ class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers,
         mus = {m for (_, _, m, _) in pr.phases}
         self.viscous = max(mus) > 0.0
         self.mu_varies = len(mus) > 1
-        a_K = 2.0 * self.mu * ufl.inner(ufl.sym(ufl.grad(v)), ufl.sym(ufl.grad(w))) * dx
+        a_K = pr.viscous_form(self.mu, v, w) * dx
         if self.capillary is not None:  # the semi-implicit Laplace-Beltrami term
             a_K = a_K + self.capillary.implicit_form(v, w, self.dt_c) * dx
         self.a_K = compat.form(a_K)

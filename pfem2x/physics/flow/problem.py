@@ -13,7 +13,8 @@ measured.
 Boundaries of a box domain, per side (``flow.left``, ``right``, ``bottom``,
 ``top``; ``flow.walls`` for the rest): ``slip`` (normal component zero),
 ``noslip``, ``inflow`` (``flow.inflow_velocity``) and ``outflow`` (do-nothing,
-:math:`\\delta p = 0`).
+:math:`\\mu\\,\\partial u/\\partial n - p n = 0` with the viscous term in the gradient
+form, :meth:`FlowProblem.viscous_form`; :math:`\\delta p = 0`).
 
 Exact solutions (``flow.exact_velocity``, ``flow.exact_pressure``): the
 diagnostics add ``velocity_l2_error`` / ``pressure_l2_error`` (domain RMS, the
@@ -29,6 +30,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import ufl
 
 from pfem2x import compat
 from pfem2x.cases import make_case
@@ -115,6 +117,24 @@ class FlowProblem:
         self.surface_tension = (
             scene.expr("flow", "surface_tension").value() if eff.surface_tension else 0.0
         )
+        #: the viscous term in the gradient form mu grad(u):grad(w) (see :meth:`viscous_form`)
+        self.gradient_form = "outflow" in self.sides.values() and len({p[2] for p in phases}) == 1
+
+    def viscous_form(self, mu: Any, v: Any, w: Any) -> Any:
+        """The viscous term's integrand for trial ``v`` and test ``w``.
+
+        ``2 mu eps(v):eps(w)`` (the stress of any viscosity field), except with an
+        ``outflow`` side and one viscosity: ``mu grad(v):grad(w)``. For a
+        divergence-free velocity and constant ``mu`` the two have the same operator
+        inside, but their natural condition on the outflow side differs: the
+        gradient form's ``mu du/dn - p n = 0`` (the "do-nothing" condition of
+        Heywood, Rannacher & Turek 1996) holds for a developed channel flow, the
+        symmetric one's ``2 mu eps(u) n - p n = 0`` does not (it asks
+        ``dv/dx = -du/dy`` there and bends the flow at the outlet).
+        """
+        if self.gradient_form:
+            return mu * ufl.inner(ufl.grad(v), ufl.grad(w))
+        return 2.0 * mu * ufl.inner(ufl.sym(ufl.grad(v)), ufl.sym(ufl.grad(w)))
 
 
 class FlowSolver(Solver):

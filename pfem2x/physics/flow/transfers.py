@@ -141,7 +141,8 @@ class ParticleTransfers:
         """
         c = self.cloud_
         meth = self.scene.method.projection
-        meth = "average" if meth == "auto" else meth
+        if meth == "auto":  # (the average is biased on an outflow side's one-sided nodes)
+            meth = "linear" if "outflow" in self.problem.sides.values() else "average"
         if self.affine:
             self._project_affine()
             return
