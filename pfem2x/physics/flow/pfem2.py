@@ -380,7 +380,7 @@ class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers,
             if grav:
                 L_pc = L_pc + (1.0 / self.rho) * ufl.dot(f_body, ufl.grad(r)) * dx
             if self.viscous and not pr.two_phase:
-                self.vort = RotationalViscousTerm(self.u, self.mu / self.rho)
+                self.vort = RotationalViscousTerm(self.u, self.mu / self.rho, self.domain.table)
                 L_pc = L_pc + self.vort.term(r) * dx
             self.L_pc = compat.form(L_pc)
         self.b_m = compat.create_vector(self.projection.L_mass)
