@@ -183,15 +183,15 @@ def test_channel_is_held_at_the_interpolation_error_in_both_frames(shared_tmp):
     """32 x 8 to t = 4: the steady exact state kept at the P1 interpolation error.
 
     The error at t = 0 is the interpolant's (0.01141). Both frames keep it at Courant
-    0.5 (PFEM-2 within 5 %), and PFEM-2's error at Courant 8 is within 1.25 x its
+    0.5 (PFEM-2 within 5 %), and PFEM-2's error at Courant 8 is within 1.1 x its
     Courant 0.5 one. What it takes: the viscous term in the gradient form with an
     outflow side (the do-nothing condition a developed channel meets; the symmetric
     stress form bent the flow at the outlet), PFEM-2's linear-exact projection there
     (the shape-function average is biased on the outflow side's one-sided nodes), the
     particles that came in through the inflow side in the step given its velocity
-    where they crossed, and the viscous term of the consistent pressure. Measured:
-    PFEM-2 0.01142 / 0.01292 (Courant 0.5 / 8), Eulerian 0.01141 / 0.01165; before,
-    PFEM-2 0.0175 / 0.0264 and Eulerian 0.0117 / 0.0121.
+    where they crossed plus the step's source, and the viscous term of the consistent
+    pressure. Measured: PFEM-2 0.01142 / 0.01165 (Courant 0.5 / 8), Eulerian 0.01141 /
+    0.01165; before, PFEM-2 0.0175 / 0.0264 and Eulerian 0.0117 / 0.0121.
     """
     err, err0 = {}, {}
     for frame, co in (("lagrangian", 0.5), ("lagrangian", 8), ("eulerian", 8)):
@@ -203,7 +203,7 @@ def test_channel_is_held_at_the_interpolation_error_in_both_frames(shared_tmp):
         err0[frame, co] = res.history[0]["velocity_l2_error"]
     e0 = err0["lagrangian", 0.5]
     assert err["lagrangian", 0.5] <= 1.05 * e0, (err, e0)
-    assert err["lagrangian", 8] <= 1.25 * err["lagrangian", 0.5], err
+    assert err["lagrangian", 8] <= 1.1 * err["lagrangian", 0.5], err
     assert err["eulerian", 8] <= 1.05 * err0["eulerian", 8], (err, err0)
 
 

@@ -10,7 +10,7 @@ side are topped up to ``method.particles_per_cell`` with particles carrying
 ``flow.inflow_velocity`` (:meth:`OpenSides._seed_inflow`), and so are the cells within
 one step's inflow travel of it (:meth:`OpenSides._inflow_band`), where the particles whose
 path of the step came in through the side take the inflow velocity where it crossed plus
-the source since (:meth:`OpenSides._trace_inflow`); the viscous predictor's right-hand
+the step's source (:meth:`OpenSides._trace_inflow`); the viscous predictor's right-hand
 side lifts the inflow values through its operator (:meth:`OpenSides._set_viscous_bc`).
 """
 
@@ -103,15 +103,20 @@ class OpenSides:
         crosses an inflow side (inward normal speed ``u_n > 0``, distance ``d < u_n dt``)
         entered during the step: it takes the inflow velocity where that path crosses
         the side, found by two fixed-point updates of ``u`` (exact for a parallel
-        inflow). The values of the band's new particles are otherwise fits of their
-        neighbours', whose repeated re-fitting would smooth the inflow profile.
+        inflow), plus the whole step's explicit source ``a`` at its position, as the
+        particle it stands for (upstream of the side at the start of the step, with the
+        inflow's state) would have: the viscous predictor acts on the nodes over the
+        whole step, so the explicit part must too (they cancel in a developed flow; with
+        the source only since the crossing a channel at Courant 8 lost ``(dt - d/u_n) G``
+        behind the inflow). The values of the band's new particles are otherwise fits of
+        their neighbours', whose repeated re-fitting would smooth the inflow profile.
         """
         c = self.cloud_
         sel = np.flatnonzero(band[c.cells])
         if len(sel) == 0:
             return
         x, u = c.x[sel], c.field("u")[sel]
-        acc = P.evaluate(c, self.force)[sel]  # the explicit source since the crossing
+        acc = P.evaluate(c, self.force)[sel]  # the explicit source
         lo = self.domain.bounds[0]
         for a, v in self._planes("inflow"):
             inward = 1.0 if v == lo[a] else -1.0
@@ -124,7 +129,7 @@ class OpenSides:
                 vals = u_in(foot)
             un = vals[:, a] * inward
             hit = (un > 0.0) & (d < un * self._dt_step)
-            u[hit] = vals[hit] + (d[hit] / un[hit])[:, None] * acc[hit]
+            u[hit] = vals[hit] + self._dt_step * acc[hit]
         c.field("u")[sel] = u
 
     def _inflow_band(self) -> np.ndarray | None:

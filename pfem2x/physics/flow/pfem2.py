@@ -160,7 +160,7 @@ Open sides (one phase, :mod:`.open_sides`): particles that leave through an ``ou
 side are deleted in the move; after each move the cells within one step's inflow travel
 of an ``inflow`` side are topped up to ``method.particles_per_cell``, and the particles
 there whose path of the step came in through the side take ``flow.inflow_velocity``
-where it crossed plus the source since; the viscous predictor lifts the inflow values
+where it crossed plus the step's source; the viscous predictor lifts the inflow values
 through its operator. Limitations: two phases with box sides ``slip`` / ``noslip``
 only; 2D.
 """
