@@ -43,6 +43,9 @@ class RotationalViscousTerm:
         The P1 velocity (2 or 3 components).
     nu:
         The kinematic viscosity (a UFL expression, e.g. ``mu / rho``).
+    table:
+        The mesh's :class:`~pfem2x.mesh.GeometryTable` (its boundary facets, for
+        :func:`boundary_fit`).
     """
 
     def __init__(self, u: Any, nu: Any, table: Any):
