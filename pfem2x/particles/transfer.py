@@ -150,11 +150,15 @@ def _work_vector(pm: Any, ncol: int, tag: str = "acc") -> Any:
     return cache[key]
 
 
-def evaluate(cloud: Cloud, f: Any) -> np.ndarray:
-    """Values of a P1 Function / nodal array at the particles: ``(n,)`` or ``(n, k)``."""
+def evaluate(cloud: Cloud, f: Any, index: np.ndarray | None = None) -> np.ndarray:
+    """Values of a P1 Function / nodal array at the particles: ``(n,)`` or ``(n, k)``.
+
+    ``index``: only at these particles (then ``(len(index),)`` or ``(len(index), k)``).
+    """
     pm = cloud.pmesh
     a = nodal_values(pm, f)
-    v = K.evaluate_p1(cloud.x, cloud.cells, a, pm.arrays)
+    x, cells = (cloud.x, cloud.cells) if index is None else (cloud.x[index], cloud.cells[index])
+    v = K.evaluate_p1(x, cells, a, pm.arrays)
     return v[:, 0] if a.shape[1] == 1 else v
 
 

@@ -116,7 +116,7 @@ class OpenSides:
         if len(sel) == 0:
             return
         x, u = c.x[sel], c.field("u")[sel]
-        acc = P.evaluate(c, self.force)[sel]  # the explicit source
+        acc = P.evaluate(c, self.force, sel)  # the explicit source
         lo = self.domain.bounds[0]
         for a, v in self._planes("inflow"):
             inward = 1.0 if v == lo[a] else -1.0

@@ -117,8 +117,10 @@ class FlowProblem:
         self.surface_tension = (
             scene.expr("flow", "surface_tension").value() if eff.surface_tension else 0.0
         )
+        #: whether a side is an ``outflow`` side
+        self.outflow = "outflow" in self.sides.values()
         #: the viscous term in the gradient form mu grad(u):grad(w) (see :meth:`viscous_form`)
-        self.gradient_form = "outflow" in self.sides.values() and len({p[2] for p in phases}) == 1
+        self.gradient_form = self.outflow and len({p[2] for p in phases}) == 1
 
     def viscous_form(self, mu: Any, v: Any, w: Any) -> Any:
         """The viscous term's integrand for trial ``v`` and test ``w``.

@@ -142,7 +142,7 @@ class ParticleTransfers:
         c = self.cloud_
         meth = self.scene.method.projection
         if meth == "auto":  # (the average is biased on an outflow side's one-sided nodes)
-            meth = "linear" if "outflow" in self.problem.sides.values() else "average"
+            meth = "linear" if self.problem.outflow else "average"
         if self.affine:
             self._project_affine()
             return

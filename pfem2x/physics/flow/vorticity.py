@@ -64,6 +64,7 @@ class RotationalViscousTerm:
         self._lumped = np.array(lumped.array_r)
         self.nu = nu
         self._fit = boundary_fit(self.W, table)
+        self._fitted_nodes = np.unique(self._fit[0])
 
     def term(self, r: Any) -> Any:
         """``-ν ∇r·curl ω_h`` (integrand; ``r`` the pressure's test function)."""
@@ -82,8 +83,7 @@ class RotationalViscousTerm:
             fitted = np.zeros((len(w), bs))
             for k in range(bs):
                 fitted[:, k] = np.bincount(rows, coef * w[cols, k], minlength=len(w))
-            done = np.unique(rows)
-            w[done] = fitted[done]
+            w[self._fitted_nodes] = fitted[self._fitted_nodes]
         self.omega.x.scatter_forward()
 
 
@@ -143,13 +143,17 @@ def boundary_fit(W: Any, table: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray
     phi = np.concatenate([np.ones((len(r2), 1)), x[r2[:, 1]] - x[r2[:, 0]]], axis=1)
     M = np.zeros((n_loc, gdim + 1, gdim + 1))
     np.add.at(M, r2[:, 0], phi[:, :, None] * phi[:, None, :])
-    Mb = M[r2[:, 0]]
-    ok_node = np.zeros(n_loc, dtype=bool)
-    det = np.linalg.det(M[owned_b]) if len(owned_b) else np.zeros(0)
-    scale = np.einsum("nii->n", M[owned_b]) ** (gdim + 1) if len(owned_b) else np.zeros(0)
-    ok_node[owned_b] = np.abs(det) > 1e-10 * scale
-    keep = ok_node[r2[:, 0]]
-    if not keep.any():
+    Mo = M[owned_b]
+    ok = np.abs(np.linalg.det(Mo)) > 1e-10 * np.einsum("nii->n", Mo) ** (gdim + 1)
+    if not ok.any():
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-    sol = np.linalg.solve(Mb[keep], phi[keep][:, :, None])[:, 0, 0]
-    return r2[keep, 0], r2[keep, 1], sol
+    # the value at x_b is e0 . M^-1 sum(phi value): per node the first row of M^-1 (M symmetric)
+    e0 = np.zeros((int(ok.sum()), gdim + 1, 1))
+    e0[:, 0] = 1.0
+    row0 = np.zeros((n_loc, gdim + 1))
+    row0[owned_b[ok]] = np.linalg.solve(Mo[ok], e0)[:, :, 0]
+    keep = np.zeros(n_loc, dtype=bool)
+    keep[owned_b[ok]] = True
+    keep = keep[r2[:, 0]]
+    coef = np.einsum("ni,ni->n", row0[r2[keep, 0]], phi[keep])
+    return r2[keep, 0], r2[keep, 1], coef
