@@ -1,4 +1,4 @@
-"""Rising bubble (Hysing et al. 2009, test case 1): runs against the TP2D reference values.
+"""Rising bubble (Hysing et al. 2009, test cases 1 and 2): runs against the reference data.
 
 Usage::
 
@@ -9,11 +9,14 @@ The first form draws four panels: the centroid height, the rise velocity and the
 circularity against t (the ``diagnostics.csv`` columns ``t``, ``centroid_y``,
 ``rise_velocity``, ``circularity`` of each ``pfem2x run rising-bubble`` folder) and the
 bubble shapes at ``--time`` (default t = 3, the polylines of
-``interface/interface_tTTTT.TTTTT.csv``, columns ``line, x, y``). The reference group TP2D
-of the paper gives three values, not curves (``docs/data/rising-bubble/hysing2009.csv``:
-the centroid at t = 3, the maximum rise velocity and its time, the minimum circularity and
-its time); they are marked as points. No reference curve or shape is stored in the
-repository.
+``interface/interface_tTTTT.TTTTT.csv``, columns ``line, x, y``). The test case is the
+runs' ``params.case`` (their ``scene.toml``). Reference: the time series and the shape at
+t = 3 of the group MooNMD (``docs/data/rising-bubble/moonmd/``, dashed black) and, as
+stars, the paper's values (``docs/data/rising-bubble/hysing2009.csv``: TP2D for test
+case 1, MooNMD for test case 2). It prints a markdown table: per run, the largest
+differences to the MooNMD series over 0 <= t <= 3 and the distance between the run's
+shape at ``--time`` and MooNMD's (the largest distance of a point of either curve to the
+other, the Hausdorff distance; and its mean over the run's vertices).
 
 The second form draws errors of a ``pfem2x study`` (``STUDY_DIR/study.json``; by default
 the three relative errors of ``rising-bubble``, else ``--metric NAME[:TARGET]`` per panel)
@@ -32,6 +35,7 @@ import argparse
 import csv
 import json
 import sys
+import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -43,8 +47,12 @@ import numpy as np  # noqa: E402
 
 from pfem2x.study.rows import pareto_front  # noqa: E402
 
-#: The reference values with their times (TP2D, test case 1).
+#: The reference values with their times (TP2D and MooNMD).
 REFERENCE = Path(__file__).resolve().parents[1] / "docs/data/rising-bubble/hysing2009.csv"
+#: MooNMD's time series ``c{case}g3l4.txt`` and shapes at t = 3 ``c{case}g3l4s.txt``.
+MOONMD = REFERENCE.parent / "moonmd"
+#: The group whose values are the stars, by test case.
+STAR_GROUP = {1: "TP2D", 2: "MooNMD"}
 
 #: (metric of ``summary.json``, target at h = 1/40): the default panels of ``--study``.
 ERRORS = (
@@ -54,8 +62,10 @@ ERRORS = (
 )
 
 
-def read_reference(path: Path, case: int = 1) -> dict[str, tuple[float, float]]:
-    """Read the reference values of one test case.
+def read_reference(
+    path: Path, case: int = 1, group: str = "TP2D"
+) -> dict[str, tuple[float, float]]:
+    """Read one group's reference values of one test case.
 
     Parameters
     ----------
@@ -63,6 +73,8 @@ def read_reference(path: Path, case: int = 1) -> dict[str, tuple[float, float]]:
         CSV with columns ``case, group, quantity, value, time``.
     case
         Hysing's test case.
+    group
+        The benchmark group (``TP2D``, ``MooNMD``).
 
     Returns
     -------
@@ -70,8 +82,70 @@ def read_reference(path: Path, case: int = 1) -> dict[str, tuple[float, float]]:
         ``quantity -> (time, value)``.
     """
     with open(path, newline="") as f:
-        rows = [r for r in csv.DictReader(f) if int(r["case"]) == case]
+        rows = [r for r in csv.DictReader(f) if int(r["case"]) == case and r["group"] == group]
+    if not rows:
+        raise ValueError(f"{path}: no values of group {group} for test case {case}")
     return {r["quantity"]: (float(r["time"]), float(r["value"])) for r in rows}
+
+
+def read_series(folder: Path, case: int) -> dict[str, np.ndarray]:
+    """Read MooNMD's time series of a test case (``c{case}g3l4.txt``).
+
+    Columns of the file: t, 0 (unused), circularity, centroid height, rise velocity.
+
+    Returns
+    -------
+    dict
+        ``t``, ``circularity``, ``centroid_y``, ``rise_velocity``.
+    """
+    d = np.loadtxt(folder / f"c{case}g3l4.txt", ndmin=2)
+    return {"t": d[:, 0], "circularity": d[:, 2], "centroid_y": d[:, 3], "rise_velocity": d[:, 4]}
+
+
+def read_shape(folder: Path, case: int) -> np.ndarray:
+    """MooNMD's bubble outline at t = 3 (``c{case}g3l4s.txt``, ``(n, 2)`` points x, y)."""
+    return np.loadtxt(folder / f"c{case}g3l4s.txt", ndmin=2)
+
+
+def point_polyline_distance(points: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """Distance of each of ``points`` ``(n, 2)`` to the polyline ``line`` ``(m, 2)``."""
+    a, b = line[:-1], line[1:]
+    ab = b - a
+    len2 = np.maximum((ab**2).sum(axis=1), 1e-300)
+    s = ((points[:, None, :] - a[None]) * ab[None]).sum(axis=2) / len2[None]
+    foot = a[None] + np.clip(s, 0.0, 1.0)[:, :, None] * ab[None]
+    return np.sqrt(((points[:, None, :] - foot) ** 2).sum(axis=2)).min(axis=1)
+
+
+def shape_distance(polys: list[np.ndarray], ref: np.ndarray) -> tuple[float, float]:
+    """Hausdorff distance between the polylines ``polys`` and ``ref``, and the mean distance
+    of the polylines' vertices to ``ref``."""
+    pts = np.vstack(polys)
+    d_run = point_polyline_distance(pts, ref)
+    d_ref = np.min([point_polyline_distance(ref, p) for p in polys], axis=0)
+    return float(max(d_run.max(), d_ref.max())), float(d_run.mean())
+
+
+def series_differences(d: Any, ref: dict[str, np.ndarray], t_end: float = 3.0) -> dict[str, float]:
+    """Largest ``|run - reference|`` of the three quantities at the run's times ``<= t_end``
+    (the reference interpolated linearly; its first point is at t = 0.002–0.004)."""
+    t = np.asarray(d["t"], dtype=float)
+    sel = (t >= ref["t"][0]) & (t <= min(t_end, ref["t"][-1]) + 1e-9)
+    return {
+        k: float(
+            np.abs(np.asarray(d[k], dtype=float)[sel] - np.interp(t[sel], ref["t"], ref[k])).max()
+        )
+        for k in ("centroid_y", "rise_velocity", "circularity")
+    }
+
+
+def run_case(path: Path) -> int:
+    """The test case of a run folder (``params.case`` of its ``scene.toml``; 1 without)."""
+    scene = path / "scene.toml"
+    if not scene.exists():
+        return 1
+    with open(scene, "rb") as f:
+        return int(tomllib.load(f).get("params", {}).get("case", 1))
 
 
 def read_interface(path: Path) -> list[np.ndarray]:
@@ -103,7 +177,34 @@ def split_spec(spec: str) -> tuple[str, Path]:
     return label, Path(path)
 
 
-def plot_runs(out: str, runs: list[str], time: float, reference: Path) -> None:
+def _inset(ax: Any, t0: float, t1: float, pos: list[float], v: float) -> None:
+    """Zoom of the panel ``ax`` to ``t0 <= t <= t1`` (every line, and the value ``v``)."""
+    ins = ax.inset_axes(pos)
+    lo, hi = v, v
+    for line in ax.get_lines():
+        x, y = (np.asarray(c, dtype=float) for c in line.get_data())
+        sel = (x >= t0) & (x <= t1)
+        if sel.any():
+            ins.plot(
+                x[sel],
+                y[sel],
+                line.get_linestyle(),
+                marker=line.get_marker(),
+                color=line.get_color(),
+                lw=1,
+                ms=line.get_markersize() * 0.7,
+            )
+            lo, hi = min(lo, y[sel].min()), max(hi, y[sel].max())
+    pad = 0.05 * (hi - lo)
+    ins.set_xlim(t0, t1)
+    ins.set_ylim(lo - pad, hi + pad)
+    ins.tick_params(labelsize=6)
+    ins.grid(alpha=0.3)
+
+
+def plot_runs(
+    out: str, runs: list[str], time: float, reference: Path, series: Path = MOONMD
+) -> list[dict[str, Any]]:
     """Draw the four-panel figure of the runs ``LABEL=RUN_DIR`` into ``out``.
 
     Parameters
@@ -111,13 +212,29 @@ def plot_runs(out: str, runs: list[str], time: float, reference: Path) -> None:
     out
         PNG file written.
     runs
-        ``LABEL=RUN_DIR`` of runs of the scene ``rising-bubble``.
+        ``LABEL=RUN_DIR`` of runs of the scene ``rising-bubble``, all of one test case.
     time
         Time of the bubble shapes (an interface file of that time must exist).
     reference
         CSV of the reference values (:func:`read_reference`).
+    series
+        Folder of MooNMD's time series and shapes (:func:`read_series`, :func:`read_shape`).
+
+    Returns
+    -------
+    list of dict
+        Per run: ``label``, the largest differences to MooNMD's series (``centroid_y``,
+        ``rise_velocity``, ``circularity``) and the shape distances ``shape_hausdorff``,
+        ``shape_mean`` at ``time``.
     """
-    ref = read_reference(reference)
+    specs = [split_spec(spec) for spec in runs]
+    cases = {run_case(path) for _, path in specs}
+    if len(cases) != 1:
+        raise ValueError(f"the runs mix Hysing's test cases {sorted(cases)}")
+    case = cases.pop()
+    group = STAR_GROUP.get(case, "MooNMD")
+    ref = read_reference(reference, case, group)
+    moon, moon_shape = read_series(series, case), read_shape(series, case)
     fig, axes = plt.subplots(2, 2, figsize=(9.5, 7.6), dpi=90)
     (a_y, a_u), (a_c, a_s) = axes
     panels = (
@@ -125,15 +242,12 @@ def plot_runs(out: str, runs: list[str], time: float, reference: Path) -> None:
         (a_u, "rise_velocity", "rise velocity u_c", "rise_velocity_max"),
         (a_c, "circularity", "circularity", "circularity_min"),
     )
-    ref_labels = {
-        "centroid_y_final": "TP2D: y_c(3)",
-        "rise_velocity_max": "TP2D: max u_c",
-        "circularity_min": "TP2D: min circularity",
-    }
+    shown = moon["t"] <= 3.0 + 1e-9  # the benchmark's interval (case 2's series goes on)
+    for ax, col, _, _ in panels:
+        ax.plot(moon["t"][shown], moon[col][shown], "k--", lw=1.0, label="MooNMD")
     fname = f"interface_t{time:010.5f}.csv"
-    first = True
-    for spec in runs:
-        label, path = split_spec(spec)
+    rows: list[dict[str, Any]] = []
+    for k, (label, path) in enumerate(specs):
         s = json.loads((path / "summary.json").read_text())
         if s.get("status") != "ok":
             label += f" ({s.get('status')})"
@@ -142,64 +256,64 @@ def plot_runs(out: str, runs: list[str], time: float, reference: Path) -> None:
         for ax, col, _, _ in panels:
             (line,) = ax.plot(d["t"], d[col], "-", lw=1.2, color=color, label=label)
             color = line.get_color()
-        if first:
+        if k == 0:
             for poly in read_interface(path / "interface" / "interface_t0000.00000.csv"):
                 a_s.plot(*poly.T, ":", color="0.5", lw=1)
             a_s.plot([], [], ":", color="0.5", label="t = 0")
-            first = False
-        for i, poly in enumerate(read_interface(path / "interface" / fname)):
+        polys = read_interface(path / "interface" / fname)
+        for i, poly in enumerate(polys):
             a_s.plot(*poly.T, "-", color=color, lw=1.2, label=label if i == 0 else None)
-    # zooms around the reference values: (t range, inset position in the panel)
-    zooms = {
+        row: dict[str, Any] = {"label": label, **series_differences(d, moon)}
+        if abs(time - 3.0) < 1e-9 and polys:
+            row["shape_hausdorff"], row["shape_mean"] = shape_distance(polys, moon_shape)
+        rows.append(row)
+    if abs(time - 3.0) < 1e-9:
+        a_s.plot(*moon_shape.T, "k--", lw=1.0, label="MooNMD")
+    zooms = {  # around the reference values: (t range, inset position in the panel)
         a_y: ((2.85, 3.0), [0.55, 0.08, 0.42, 0.42]),
-        a_u: ((0.6, 1.3), [0.5, 0.08, 0.47, 0.4]),
+        a_u: ((0.6, 1.3) if case == 1 else (0.5, 1.0), [0.5, 0.08, 0.47, 0.4]),
     }
     for ax, _, ylabel, key in panels:
         t, v = ref[key]
-        (star,) = ax.plot([t], [v], "k*", ms=11, zorder=5, label=ref_labels[key])
+        (star,) = ax.plot([t], [v], "k*", ms=11, zorder=5, label=f"{group}: {key}")
         ax.set(xlabel="t", ylabel=ylabel)
         ax.grid(alpha=0.3)
         if ax in zooms:  # the runs' legend in the other panels
-            ax.legend(handles=[star], fontsize=7, loc="upper left")
+            ax.legend(handles=[star, ax.get_lines()[0]], fontsize=7, loc="upper left")
+            _inset(ax, *zooms[ax][0], zooms[ax][1], v)
         else:
             ax.legend(fontsize=7)
-        if ax in zooms:
-            (t0, t1), pos = zooms[ax]
-            ins = ax.inset_axes(pos)
-            lo, hi = v, v
-            for line in ax.get_lines():
-                x, y = (np.asarray(c, dtype=float) for c in line.get_data())
-                sel = (x >= t0) & (x <= t1)
-                if sel.any():
-                    ins.plot(
-                        x[sel],
-                        y[sel],
-                        line.get_linestyle(),
-                        marker=line.get_marker(),
-                        color=line.get_color(),
-                        lw=1,
-                        ms=line.get_markersize() * 0.7,
-                    )
-                    lo, hi = min(lo, y[sel].min()), max(hi, y[sel].max())
-            pad = 0.05 * (hi - lo)
-            ins.set_xlim(t0, t1)
-            ins.set_ylim(lo - pad, hi + pad)
-            ins.tick_params(labelsize=6)
-            ins.grid(alpha=0.3)
     t3, y3 = ref["centroid_y_final"]
-    a_s.plot([0.5], [y3], "k*", ms=11, label=f"TP2D: y_c({t3:g})")
+    a_s.plot([0.5], [y3], "k*", ms=11, label=f"{group}: y_c({t3:g})")
     a_s.set(xlabel="x", ylabel="y", title=f"interface at t = {time:g}", aspect="equal")
     a_s.set_xlim(0.0, 1.0)
-    a_s.set_ylim(0.4, 1.4)
+    a_s.set_ylim(0.4, 1.45)
     a_s.grid(alpha=0.3)
     a_s.legend(fontsize=7, loc="lower left")
     fig.suptitle(
-        "rising bubble, Hysing et al. (2009) test case 1; stars: TP2D reference values "
-        "(no reference curves stored)",
+        f"rising bubble, Hysing et al. (2009) test case {case}; dashed: MooNMD's series and "
+        f"shape, stars: {group}'s values",
         fontsize=9,
     )
     fig.tight_layout()
     fig.savefig(out)
+    return rows
+
+
+def markdown_rows(rows: list[dict[str, Any]]) -> str:
+    """The table of :func:`plot_runs`' differences to MooNMD."""
+    lines = [
+        "| run | max \\|Δy_c\\| | max \\|Δu_c\\| | max \\|Δcircularity\\| "
+        "| outline at t = 3: Hausdorff | mean |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        shape = [f"{r[k]:.4f}" if k in r else "" for k in ("shape_hausdorff", "shape_mean")]
+        lines.append(
+            f"| {r['label']} | {r['centroid_y']:.4f} | {r['rise_velocity']:.4f} "
+            f"| {r['circularity']:.4f} | {shape[0]} | {shape[1]} |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def read_study(folder: Path) -> tuple[list[str], list[dict[str, Any]]]:
@@ -342,7 +456,7 @@ def main(argv: list[str] | None = None) -> int:
         elif not a.runs:
             p.error("at least one LABEL=RUN_DIR")
         else:
-            plot_runs(a.out, a.runs, a.time, a.reference)
+            print(markdown_rows(plot_runs(a.out, a.runs, a.time, a.reference)), end="")
     except (OSError, ValueError, KeyError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -1,0 +1,125 @@
+"""The rising bubble's reference data: the stored values follow from the stored series.
+
+``docs/data/rising-bubble/hysing2009.csv`` holds the values the metrics compare with
+(``pfem2x.cases.HYSING_BUBBLE``); its MooNMD rows must be what the group's time series in
+``docs/data/rising-bubble/moonmd/`` give, and ``benchmarks/bubble_plot.py`` measures runs
+against those series and the shapes at t = 3.
+"""
+
+import csv
+import importlib.util
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from pfem2x.cases import HYSING_BUBBLE, RisingBubbleCase
+
+ROOT = Path(__file__).resolve().parent.parent
+DATA = ROOT / "docs" / "data" / "rising-bubble"
+
+
+def _plot_module():
+    spec = importlib.util.spec_from_file_location("bubble_plot", ROOT / "benchmarks/bubble_plot.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _rows() -> list[dict[str, str]]:
+    with open(DATA / "hysing2009.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.mark.parametrize("case", [1, 2])
+def test_moonmd_values_are_read_off_its_series(case):
+    mod = _plot_module()
+    s = mod.read_series(DATA / "moonmd", case)
+    win = s["t"] <= 3.0
+    assert s["t"][0] < 0.01 and s["t"][win][-1] > 2.99 and abs(s["centroid_y"][0] - 0.5) < 1e-5
+    got = {r["quantity"]: r for r in _rows() if r["group"] == "MooNMD" and int(r["case"]) == case}
+    y3 = np.interp(3.0, s["t"], s["centroid_y"])
+    assert float(got["centroid_y_final"]["value"]) == pytest.approx(y3, abs=6e-6)
+    first = win & (s["t"] < 1.5)  # case 2 has a second, lower maximum after t = 1.5
+    k = int(np.argmax(np.where(first, s["rise_velocity"], -1.0)))
+    assert float(got["rise_velocity_max"]["value"]) == pytest.approx(
+        s["rise_velocity"][k], abs=6e-6
+    )
+    assert float(got["rise_velocity_max"]["time"]) == pytest.approx(s["t"][k], abs=1e-4)
+    assert s["rise_velocity"][k] == s["rise_velocity"][win].max()
+    circ3 = np.interp(3.0, s["t"], s["circularity"])
+    cmin = min(s["circularity"][win].min(), circ3)
+    assert float(got["circularity_min"]["value"]) == pytest.approx(cmin, abs=6e-6)
+    if case == 2:
+        late = win & (s["t"] > 1.5)
+        k = int(np.argmax(np.where(late, s["rise_velocity"], -1.0)))
+        assert float(got["rise_velocity_max2"]["value"]) == pytest.approx(
+            s["rise_velocity"][k], abs=6e-6
+        )
+        assert float(got["rise_velocity_max2"]["time"]) == pytest.approx(s["t"][k], abs=1e-4)
+    shape = mod.read_shape(DATA / "moonmd", case)
+    assert shape.shape[1] == 2 and np.allclose(shape[0], shape[-1], atol=1e-3)  # closed
+
+
+def test_metrics_compare_with_the_stored_values():
+    rows = _rows()
+    for case, group in ((1, "TP2D"), (2, "MooNMD")):
+        stored = {
+            r["quantity"]: float(r["value"])
+            for r in rows
+            if int(r["case"]) == case and r["group"] == group
+        }
+        assert {k: stored[k] for k in HYSING_BUBBLE[case]} == HYSING_BUBBLE[case]
+    # TP2D's values of test case 1 against MooNMD's series: the groups agree to 0.05 %
+    moon = {
+        r["quantity"]: float(r["value"])
+        for r in rows
+        if r["group"] == "MooNMD" and int(r["case"]) == 1
+    }
+    for k, v in HYSING_BUBBLE[1].items():
+        assert abs(v - moon[k]) / v < 5e-4, k
+
+
+def test_case_two_runs_get_relative_errors():
+    """A test case 2 run to t = 3 gets the three relative errors against MooNMD."""
+    solver = SimpleNamespace(scene=SimpleNamespace(params={"case": 2}))
+    case = RisingBubbleCase(solver)
+    ref = HYSING_BUBBLE[2]
+    t = np.linspace(0.0, 3.0, 31)
+    hist = [
+        {
+            "t": ti,
+            "centroid_y": 0.5 + (ref["centroid_y_final"] * 1.01 - 0.5) * ti / 3.0,
+            "rise_velocity": ref["rise_velocity_max"] * 0.98 * np.sin(np.pi * ti / 3.0),
+            "circularity": 1.0 - (1.0 - ref["circularity_min"]) * ti / 3.0,
+        }
+        for ti in t
+    ]
+    m = case.metrics(hist)
+    assert m["centroid_y_final_rel_error"] == pytest.approx(0.01, rel=1e-9)
+    assert m["rise_velocity_max_rel_error"] == pytest.approx(0.02, rel=1e-9)
+    assert m["circularity_min_rel_error"] == pytest.approx(0.0, abs=1e-12)
+    assert "centroid_y_final_rel_error" not in case.metrics(hist[:-1])  # t_end < 3
+
+
+def test_shape_and_series_differences():
+    """The Hausdorff distance of two concentric circles is their radii's difference."""
+    mod = _plot_module()
+    a = np.linspace(0.0, 2.0 * np.pi, 2001)
+    circle = np.c_[0.5 + 0.25 * np.cos(a), 0.5 + 0.25 * np.sin(a)]
+    b = np.linspace(0.0, 2.0 * np.pi, 301)
+    bigger = np.c_[0.5 + 0.26 * np.cos(b), 0.5 + 0.26 * np.sin(b)]
+    h, mean = mod.shape_distance([bigger], circle)
+    assert h == pytest.approx(0.01, abs=1e-6) and mean == pytest.approx(0.01, abs=1e-6)
+    # an open arc: the far part of the reference is far from it
+    h, _ = mod.shape_distance([bigger[: len(bigger) // 2]], circle)
+    assert h > 0.35  # (0.5, 0.25) to the arc's ends: about sqrt(0.25² + 0.26²)
+    ref = {"t": np.linspace(0.0, 4.0, 401)}
+    for k in ("centroid_y", "rise_velocity", "circularity"):
+        ref[k] = np.sin(ref["t"])
+    run = {"t": np.linspace(0.0, 3.5, 36)}
+    for k in ("centroid_y", "rise_velocity", "circularity"):
+        run[k] = np.sin(run["t"]) + np.where(run["t"] > 3.0, 1.0, 0.001 * run["t"])
+    d = mod.series_differences(run, ref)  # t <= 3 only
+    assert d["centroid_y"] == pytest.approx(0.003, abs=2e-5)
