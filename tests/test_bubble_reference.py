@@ -14,7 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from pfem2x.cases import HYSING_BUBBLE, RisingBubbleCase
+from pfem2x.cases import BUBBLE_SERIES, HYSING_BUBBLE, RisingBubbleCase, moonmd_series
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT / "docs" / "data" / "rising-bubble"
@@ -123,3 +123,36 @@ def test_shape_and_series_differences():
         run[k] = np.sin(run["t"]) + np.where(run["t"] > 3.0, 1.0, 0.001 * run["t"])
     d = mod.series_differences(run, ref)  # t <= 3 only
     assert d["centroid_y"] == pytest.approx(0.003, abs=2e-5)
+
+
+@pytest.mark.parametrize("case", [1, 2])
+def test_packaged_series_is_moonmd_resampled(case):
+    """The package's series (the curve metrics') is MooNMD's, at t = 0, 0.01, ..., 3."""
+    mod = _plot_module()
+    full = mod.read_series(DATA / "moonmd", case)
+    pkg = moonmd_series(case)
+    assert pkg["t"][0] == 0.0 and pkg["t"][-1] == pytest.approx(3.0)
+    assert np.allclose(np.diff(pkg["t"]), 0.01)
+    t0 = {"centroid_y": 0.5, "rise_velocity": 0.0, "circularity": 1.0}
+    for k in BUBBLE_SERIES:
+        ref = np.interp(pkg["t"], np.r_[0.0, full["t"]], np.r_[t0[k], full[k]])
+        assert np.abs(pkg[k] - ref).max() < 1e-6, k  # (6 decimals stored)
+    assert moonmd_series(3) is None
+
+
+def test_curve_errors_are_the_largest_differences_to_moonmd():
+    """A run that is MooNMD's series plus a known offset gets that offset back."""
+    ref = moonmd_series(1)
+    case = RisingBubbleCase(SimpleNamespace(scene=SimpleNamespace(params={"case": 1})))
+    t = np.linspace(0.0, 3.0, 61)
+    offs = {"centroid_y": 0.002, "rise_velocity": -0.003, "circularity": 0.004}
+    hist = [
+        {k: float(np.interp(ti, ref["t"], ref[k])) + offs[k] * ti / 3.0 for k in BUBBLE_SERIES}
+        | {"t": ti}
+        for ti in t
+    ]
+    hist.append(dict(hist[-1], t=3.2, centroid_y=5.0))  # after t = 3: not compared
+    m = case.metrics(hist)
+    for k, v in offs.items():
+        assert m[f"{k}_curve_error"] == pytest.approx(abs(v), abs=1e-9), k
+    assert "centroid_y_curve_error" not in case.metrics(hist[:30])  # t_end < 3
