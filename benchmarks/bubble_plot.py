@@ -14,7 +14,8 @@ runs' ``params.case`` (their ``scene.toml``). Reference: the time series and the
 t = 3 of the group MooNMD (``docs/data/rising-bubble/moonmd/``, dashed black) and, as
 stars, the paper's values (``docs/data/rising-bubble/hysing2009.csv``: TP2D for test
 case 1, MooNMD for test case 2). It prints a markdown table: per run, the largest
-differences to the MooNMD series over 0 <= t <= 3 and the distance between the run's
+differences to the MooNMD series over 0 <= t <= 3 (the metrics ``*_curve_error``, against
+the package's copy of the series, ``pfem2x.cases.curve_errors``) and the distance between the run's
 shape at ``--time`` and MooNMD's (the largest distance of a point of either curve to the
 other, the Hausdorff distance; and its mean over the run's vertices).
 
@@ -45,6 +46,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from pfem2x.cases import curve_errors, moonmd_series  # noqa: E402
 from pfem2x.study.rows import pareto_front  # noqa: E402
 
 #: The reference values with their times (TP2D and MooNMD).
@@ -124,19 +126,6 @@ def shape_distance(polys: list[np.ndarray], ref: np.ndarray) -> tuple[float, flo
     d_run = point_polyline_distance(pts, ref)
     d_ref = np.min([point_polyline_distance(ref, p) for p in polys], axis=0)
     return float(max(d_run.max(), d_ref.max())), float(d_run.mean())
-
-
-def series_differences(d: Any, ref: dict[str, np.ndarray], t_end: float = 3.0) -> dict[str, float]:
-    """Largest ``|run - reference|`` of the three quantities at the run's times ``<= t_end``
-    (the reference interpolated linearly; its first point is at t = 0.002–0.004)."""
-    t = np.asarray(d["t"], dtype=float)
-    sel = (t >= ref["t"][0]) & (t <= min(t_end, ref["t"][-1]) + 1e-9)
-    return {
-        k: float(
-            np.abs(np.asarray(d[k], dtype=float)[sel] - np.interp(t[sel], ref["t"], ref[k])).max()
-        )
-        for k in ("centroid_y", "rise_velocity", "circularity")
-    }
 
 
 def run_case(path: Path) -> int:
@@ -235,6 +224,9 @@ def plot_runs(
     group = STAR_GROUP.get(case, "MooNMD")
     ref = read_reference(reference, case, group)
     moon, moon_shape = read_series(series, case), read_shape(series, case)
+    packaged = moonmd_series(case)  # the metrics' copy (``*_curve_error``)
+    if packaged is None:
+        raise ValueError(f"no MooNMD series of test case {case} in the package")
     fig, axes = plt.subplots(2, 2, figsize=(9.5, 7.6), dpi=90)
     (a_y, a_u), (a_c, a_s) = axes
     panels = (
@@ -263,7 +255,10 @@ def plot_runs(
         polys = read_interface(path / "interface" / fname)
         for i, poly in enumerate(polys):
             a_s.plot(*poly.T, "-", color=color, lw=1.2, label=label if i == 0 else None)
-        row: dict[str, Any] = {"label": label, **series_differences(d, moon)}
+        vals = {k: d[k] for k in ("centroid_y", "rise_velocity", "circularity")}
+        errs = curve_errors(d["t"], vals, packaged)
+        row: dict[str, Any] = {"label": label}
+        row.update({k.removesuffix("_curve_error"): v for k, v in errs.items()})
         if abs(time - 3.0) < 1e-9 and polys:
             row["shape_hausdorff"], row["shape_mean"] = shape_distance(polys, moon_shape)
         rows.append(row)

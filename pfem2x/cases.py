@@ -32,16 +32,17 @@ from pfem2x.compat import MPI
 from pfem2x.scene import SceneError
 
 __all__ = [
+    "BUBBLE_SERIES",
     "MARTIN_MOYCE_FRONT",
     "MARTIN_MOYCE_HEIGHT",
     "Case",
     "DamBreakCase",
-    "BUBBLE_SERIES",
     "HYSING_BUBBLE",
     "INTERFOAM_RT_TIPS",
     "RayleighTaylorCase",
     "RisingBubbleCase",
     "StaticDropCase",
+    "curve_errors",
     "make_case",
     "moonmd_series",
     "subcell_points",
@@ -392,6 +393,37 @@ def moonmd_series(case: int) -> dict[str, np.ndarray] | None:
     return {"t": d[:, 0], **{k: d[:, j + 1] for j, k in enumerate(BUBBLE_SERIES)}}
 
 
+def curve_errors(
+    t: np.ndarray, values: dict[str, np.ndarray], series: dict[str, np.ndarray]
+) -> dict[str, float]:
+    """Largest ``|run - series|`` of each of :data:`BUBBLE_SERIES` at the times ``t <= 3``.
+
+    Parameters
+    ----------
+    t
+        The run's times.
+    values
+        The run's arrays of :data:`BUBBLE_SERIES` at ``t``.
+    series
+        The reference (:func:`moonmd_series`), interpolated linearly to ``t``.
+
+    Returns
+    -------
+    dict
+        ``{name}_curve_error`` per quantity.
+    """
+    t = np.asarray(t, dtype=float)
+    sel = t <= min(3.0, float(series["t"][-1])) + 1e-9
+    return {
+        f"{k}_curve_error": float(
+            np.abs(
+                np.asarray(values[k], dtype=float)[sel] - np.interp(t[sel], series["t"], series[k])
+            ).max()
+        )
+        for k in BUBBLE_SERIES
+    }
+
+
 class RisingBubbleCase(Case):
     """Hysing et al.'s (2009) rising bubble: centroid, rise velocity, circularity.
 
@@ -444,11 +476,8 @@ class RisingBubbleCase(Case):
             for key in ("centroid_y_final", "rise_velocity_max", "circularity_min"):
                 out[f"{key}_rel_error"] = abs(out[key] - self.ref[key]) / self.ref[key]
             if self.series is not None:
-                ref, sel = self.series, t <= 3.0 + 1e-9
-                for key in BUBBLE_SERIES:
-                    run = np.array([h[key] for h in history])[sel]
-                    dev = np.abs(run - np.interp(t[sel], ref["t"], ref[key]))
-                    out[f"{key}_curve_error"] = float(dev.max())
+                vals = {k: np.array([h[k] for h in history]) for k in BUBBLE_SERIES}
+                out.update(curve_errors(t, vals, self.series))
         return out
 
 
