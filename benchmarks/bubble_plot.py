@@ -124,7 +124,8 @@ def shape_distance(polys: list[np.ndarray], ref: np.ndarray) -> tuple[float, flo
     of the polylines' vertices to ``ref``."""
     pts = np.vstack(polys)
     d_run = point_polyline_distance(pts, ref)
-    d_ref = np.min([point_polyline_distance(ref, p) for p in polys], axis=0)
+    lines = [p if len(p) > 1 else np.vstack([p, p]) for p in polys]  # a lone point: itself
+    d_ref = np.min([point_polyline_distance(ref, p) for p in lines], axis=0)
     return float(max(d_run.max(), d_ref.max())), float(d_run.mean())
 
 

@@ -115,6 +115,8 @@ def test_shape_distance():
     # an open arc: the far part of the reference is far from it
     h, _ = mod.shape_distance([bigger[: len(bigger) // 2]], circle)
     assert h > 0.35  # (0.5, 0.25) to the arc's ends: about sqrt(0.25² + 0.26²)
+    h, _ = mod.shape_distance([circle, np.array([[0.5, 0.9]])], circle)  # a droplet
+    assert h == pytest.approx(0.15, abs=1e-6)
 
 
 @pytest.mark.parametrize("case", [1, 2])
@@ -148,3 +150,47 @@ def test_curve_errors_are_the_largest_differences_to_moonmd():
     for k, v in offs.items():
         assert m[f"{k}_curve_error"] == pytest.approx(abs(v), abs=1e-9), k
     assert "centroid_y_curve_error" not in case.metrics(hist[:30])  # t_end < 3
+
+
+def _fake_run(folder: Path, case: int) -> Path:
+    """A run folder whose series and outline at t = 3 are MooNMD's own."""
+    mod = _plot_module()
+    ref = moonmd_series(case)
+    folder.mkdir(parents=True)
+    (folder / "scene.toml").write_text(f"[params]\ncase = {case}\n")
+    (folder / "summary.json").write_text('{"status": "ok", "metrics": {}}')
+    t = np.round(np.arange(0.0, 3.0 + 1e-9, 0.1), 10)
+    with open(folder / "diagnostics.csv", "w") as f:
+        f.write("t,centroid_y,rise_velocity,circularity\n")
+        for ti in t:
+            vals = [np.interp(ti, ref["t"], ref[k]) for k in BUBBLE_SERIES]
+            f.write(f"{ti}," + ",".join(f"{v:.10f}" for v in vals) + "\n")
+    (folder / "interface").mkdir()
+    a = np.linspace(0.0, 2.0 * np.pi, 65)
+    circle = np.c_[0.5 + 0.25 * np.cos(a), 0.5 + 0.25 * np.sin(a)]
+    for name, pts in (
+        ("interface_t0000.00000.csv", circle),
+        ("interface_t0003.00000.csv", mod.read_shape(DATA / "moonmd", case)),
+    ):
+        rows = "".join(f"0,{x},{y}\n" for x, y in pts)
+        (folder / "interface" / name).write_text("line,x,y\n" + rows)
+    return folder
+
+
+def test_bubble_plot_of_a_run_that_is_the_reference(tmp_path, capsys):
+    """MooNMD's own series and outline, run through the plot script: differences ~0."""
+    mod = _plot_module()
+    for case in (1, 2):
+        run = _fake_run(tmp_path / f"c{case}", case)
+        out = tmp_path / f"c{case}.png"
+        assert mod.main([str(out), f"MooNMD itself={run}"]) == 0
+        assert out.stat().st_size > 0
+        row = capsys.readouterr().out.strip().splitlines()[-1].split("|")
+        assert row[1].strip() == "MooNMD itself"
+        assert all(float(c) < 1e-5 for c in row[2:7]), row
+    # runs of both test cases in one figure: one error line, exit 2, nothing written
+    bad = tmp_path / "mixed.png"
+    spec = [f"a={tmp_path / 'c1'}", f"b={tmp_path / 'c2'}"]
+    assert mod.main([str(bad), *spec]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error:") and not bad.exists()
