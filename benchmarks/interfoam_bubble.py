@@ -7,6 +7,7 @@ Usage::
     python benchmarks/interfoam_bubble.py run CASE [--tlim 1800]
     python benchmarks/interfoam_bubble.py post CASE
     python benchmarks/interfoam_bubble.py bench --n 40 80 [--capillary C] [--work DIR] [--out DIR]
+    python benchmarks/interfoam_bubble.py curves SERIES.csv [SERIES.csv ...]
 
 The problem is the scene ``pfem2x/scenes/rising-bubble.toml`` (Hysing et al. 2009, test
 case 1): its ``[params]`` (R, xc, yc, g, sigma), ``[phases]`` (densities, dynamic
@@ -48,6 +49,11 @@ and the largest Courant number.
 thread), records the load average before and after every run and writes
 ``result_n<N>.json``, ``series_n<N>.csv`` and ``results.md`` into ``--out`` (default
 ``docs/data/rising-bubble/interfoam``; with ``--capillary C`` the names end in ``_cap<C>``).
+
+``curves`` prints, for ``series.csv`` files (written by ``post`` or stored by ``bench``),
+the largest differences of centroid height, rise velocity and circularity to the group
+MooNMD's series over 0 <= t <= 3: pfem2x's metrics ``*_curve_error``
+(:func:`pfem2x.cases.curve_errors`), at the series' output times.
 """
 
 from __future__ import annotations
@@ -539,6 +545,36 @@ def markdown(results: list[dict[str, Any]], head: str = "") -> str:
     return head + "\n".join(lines) + ("\n\n" + "\n".join(notes) if notes else "") + "\n"
 
 
+def curve_table(paths: list[Path], fail: Any) -> str:
+    """Markdown table of the curve errors of ``series.csv`` files against MooNMD's series.
+
+    Parameters
+    ----------
+    paths
+        Files with the columns ``t, centroid_y, rise_velocity, circularity`` (header line).
+    fail
+        Called with a message for a missing or unreadable file (does not return).
+    """
+    from pfem2x.cases import BUBBLE_SERIES, curve_errors, moonmd_series
+
+    ref = moonmd_series(1)
+    lines = [
+        "| series | max \\|Δy_c\\| | max \\|Δu_c\\| | max \\|Δcircularity\\| |",
+        "|---|---:|---:|---:|",
+    ]
+    for path in paths:
+        try:
+            d = np.genfromtxt(path, delimiter=",", names=True)
+            vals = {k: np.atleast_1d(d[k]) for k in BUBBLE_SERIES}
+            t = np.atleast_1d(d["t"])
+        except (OSError, ValueError) as e:
+            fail(f"{path}: {e}")
+        e = curve_errors(t, vals, ref)
+        cells = " | ".join(f"{e[f'{k}_curve_error']:.4f}" for k in BUBBLE_SERIES)
+        lines.append(f"| {path.name} | {cells} |")
+    return "\n".join(lines) + "\n"
+
+
 def loadavg() -> list[float]:
     """The 1, 5 and 15 minute load averages."""
     return [float(v) for v in Path("/proc/loadavg").read_text().split()[:3]]
@@ -558,6 +594,8 @@ def main(argv: list[str] | None = None) -> None:
         p.add_argument("--write-every", type=float, default=0.02, help="field output interval")
         p.add_argument("--t-end", type=float, default=None, help="default: the scene's")
 
+    cv = sub.add_parser("curves", help="curve errors of series.csv files against MooNMD")
+    cv.add_argument("series", type=Path, nargs="+")
     mk = sub.add_parser("make", help="write a case folder")
     mk.add_argument("case", type=Path)
     mk.add_argument("--n", type=int, required=True, help="h = 1/N: N x 2N cells")
@@ -596,6 +634,9 @@ def main(argv: list[str] | None = None) -> None:
             max_dt = min(max_dt or a.write_every, a.capillary * capillary_dt(pb, n))
         return BubbleSpec(n, a.max_co, max_dt, a.write_every, t_end, a.capillary)
 
+    if a.cmd == "curves":
+        print(curve_table(a.series, fail), end="")
+        return
     if a.cmd in ("run", "bench") and not interfoam_case.FOAM_BASHRC.is_file():
         fail(f"{interfoam_case.FOAM_BASHRC}: OpenFOAM not found (apt-get install openfoam)")
     if a.cmd == "make":

@@ -8,6 +8,7 @@ against those series and the shapes at t = 3.
 
 import csv
 import importlib.util
+import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -194,3 +195,29 @@ def test_bubble_plot_of_a_run_that_is_the_reference(tmp_path, capsys):
     assert mod.main([str(bad), *spec]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error:") and not bad.exists()
+
+
+def test_interfoam_series_curve_table(capsys):
+    """The stored interFoam series against MooNMD: one row each; a bad file is one error."""
+    spec = importlib.util.spec_from_file_location(
+        "interfoam_bubble", ROOT / "benchmarks/interfoam_bubble.py"
+    )
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["interfoam_bubble"] = mod  # (its dataclasses look their module up)
+    try:
+        spec.loader.exec_module(mod)
+    finally:
+        del sys.modules["interfoam_bubble"]
+    files = sorted((DATA / "interfoam").glob("series_n*.csv"))
+    assert len(files) == 8
+    mod.main(["curves", *map(str, files)])
+    rows = capsys.readouterr().out.strip().splitlines()[2:]
+    assert [r.split("|")[1].strip() for r in rows] == [f.name for f in files]
+    y = {r.split("|")[1].strip(): float(r.split("|")[2]) for r in rows}
+    # interFoam's centroid: closer to MooNMD at the smaller steps (first order in dt)
+    assert y["series_n40_cap0.25.csv"] < y["series_n40_cap1.csv"] < y["series_n40.csv"]
+    with pytest.raises(SystemExit) as e:
+        mod.main(["curves", str(DATA / "no-such.csv")])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error:") and "no-such.csv" in err[0]
