@@ -46,7 +46,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from pfem2x.cases import curve_errors, moonmd_series  # noqa: E402
+from pfem2x.cases import BUBBLE_SERIES, curve_errors, moonmd_series  # noqa: E402
 from pfem2x.study.rows import pareto_front  # noqa: E402
 
 #: The reference values with their times (TP2D and MooNMD).
@@ -256,7 +256,7 @@ def plot_runs(
         polys = read_interface(path / "interface" / fname)
         for i, poly in enumerate(polys):
             a_s.plot(*poly.T, "-", color=color, lw=1.2, label=label if i == 0 else None)
-        vals = {k: d[k] for k in ("centroid_y", "rise_velocity", "circularity")}
+        vals = {k: d[k] for k in BUBBLE_SERIES}
         errs = curve_errors(d["t"], vals, packaged)
         row: dict[str, Any] = {"label": label}
         row.update({k.removesuffix("_curve_error"): v for k, v in errs.items()})

@@ -463,10 +463,10 @@ class RisingBubbleCase(Case):
             return {}
         t = np.array([h["t"] for h in history])
         out: dict[str, Any] = {}
-        for key in ("centroid_y", "rise_velocity", "circularity"):
+        for key in BUBBLE_SERIES:
             out[key] = [[h["t"], h[key]] for h in history]
-        vel = np.array([h["rise_velocity"] for h in history])
-        circ = np.array([h["circularity"] for h in history])
+        vals = {k: np.array([h[k] for h in history]) for k in BUBBLE_SERIES}
+        vel, circ = vals["rise_velocity"], vals["circularity"]
         out["centroid_y_final"] = history[-1]["centroid_y"]
         k = int(np.argmax(vel))
         out["rise_velocity_max"], out["rise_velocity_max_time"] = float(vel[k]), float(t[k])
@@ -476,7 +476,6 @@ class RisingBubbleCase(Case):
             for key in ("centroid_y_final", "rise_velocity_max", "circularity_min"):
                 out[f"{key}_rel_error"] = abs(out[key] - self.ref[key]) / self.ref[key]
             if self.series is not None:
-                vals = {k: np.array([h[k] for h in history]) for k in BUBBLE_SERIES}
                 out.update(curve_errors(t, vals, self.series))
         return out
 
