@@ -181,10 +181,12 @@ def _exercise_interface(points: Any) -> None:
     import numpy as np  # noqa: PLC0415
 
     from pfem2x.physics.flow.balanced import closest_points  # noqa: PLC0415
-    from pfem2x.physics.flow.interface import positive_fraction  # noqa: PLC0415
+    from pfem2x.physics.flow.interface import positive_fraction, segment_distance  # noqa: PLC0415
 
-    closest_points(points, np.array([[[0.0, 0.5], [1.0, 0.5]]]))
+    seg = np.array([[[0.0, 0.5], [1.0, 0.5]]])
+    closest_points(points, seg)
     positive_fraction(np.array([[1.0, -1.0, 0.5]]))
+    segment_distance(points, seg, cap=0.25)
 
 
 def warm_up(say: Callable[[str], Any] | None = None, comm: Any = None) -> float:

@@ -63,13 +63,23 @@ def test_p1_levelset_geometry():
     assert np.allclose(d, [0.2, 0.3])
 
 
-@pytest.mark.parametrize("chunk", [200_000, 500])
-def test_segment_distance_with_cap_is_exact_within_the_cap(chunk):
-    """The bucketed search (``cap``) gives the all-pairs distance wherever it is <= cap.
+def _all_pairs_distance(pts, segs):
+    """The distance to the nearest segment by brute force over all pairs (numpy)."""
+    a = segs[None, :, 0, :]
+    ab = segs[None, :, 1, :] - a
+    ap = pts[:, None, :] - a
+    s = np.clip(np.sum(ap * ab, axis=2) / np.maximum(np.sum(ab * ab, axis=2), 1e-300), 0, 1)
+    d = ap - s[:, :, None] * ab
+    return np.sqrt(np.min(np.sum(d * d, axis=2), axis=1))
+
+
+def test_segment_distance_with_cap_is_exact_within_the_cap():
+    """The bucketed search gives the all-pairs distance wherever it is <= cap.
 
     A spiral of 800 segments (a rolled-up interface) and 5000 points in and
     around its box; points farther than ``cap`` from every segment must come
-    back as more than ``cap`` (the re-distancing clips them to ``cap``).
+    back as more than ``cap`` (the re-distancing clips them to ``cap``). Without
+    a cap every distance is the all-pairs one.
     """
     rng = np.random.default_rng(7)
     t = np.linspace(0.0, 1.0, 801)
@@ -77,15 +87,21 @@ def test_segment_distance_with_cap_is_exact_within_the_cap(chunk):
     segs = np.stack([line[:-1], line[1:]], axis=1)
     pts = rng.uniform([-0.7, -2.2], [0.7, 1.7], (5000, 2))
     pts[:10] = line[:10]  # on the line: distance 0
-    ref = segment_distance(pts, segs, chunk=200_000)
+    ref = _all_pairs_distance(pts, segs)
     for cap in (0.02, 0.15, 3.0):
-        d = segment_distance(pts, segs, cap=cap, chunk=chunk)
+        d = segment_distance(pts, segs, cap=cap)
         inside = ref <= cap
         assert inside.sum() > 50 and (cap > 1.0 or (~inside).sum() > 50)
-        assert np.array_equal(d[inside], ref[inside])
+        assert np.allclose(d[inside], ref[inside], rtol=0, atol=1e-15)
         assert np.all(d[~inside] > cap)
+    for cap in (None, 0.0, np.inf):
+        assert np.allclose(segment_distance(pts, segs, cap=cap), ref, rtol=0, atol=1e-15)
     assert np.all(segment_distance(pts[:10], segs, cap=0.01) == 0.0)
     assert segment_distance(pts, segs[:0], cap=0.1).min() == np.inf
+    # degenerate boxes: one point, a horizontal line; points far outside them
+    far = np.array([[0.0, 0.0], [1.0, 1.0], [-1e3, 5.0]])
+    for s in (np.array([[[0.5, 0.5], [0.5, 0.5]]]), np.array([[[0.0, 0.5], [1.0, 0.5]]])):
+        assert np.allclose(segment_distance(far, s), _all_pairs_distance(far, s), atol=1e-12)
 
 
 @pytest.mark.mpi

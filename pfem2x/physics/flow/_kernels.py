@@ -1,8 +1,11 @@
-"""Numba kernels of the interface geometry (closest points, cut-cell fractions).
+"""Numba kernels of the interface geometry.
 
-Each kernel does, per point or per cell, the floating-point operations of the
-vectorised numpy expression it replaces, in the same order, so its results
-are bit-identical to it (no fast-math: no reassociation, no fused
+Closest points on segments, cut-cell fractions, distances to the nearest segment
+(bucketed), point-centre pairs within a radius, and the per-segment circle fits of
+the curvature (:mod:`pfem2x.physics.flow.curvature`). Each kernel does, per point,
+pair or cell, the floating-point operations of the vectorised numpy expression it
+replaced, in the same order (sums in the order ``numpy.bincount`` takes them), so
+its results are bit-identical to it (no fast-math: no reassociation, no fused
 multiply-add); only the loops are compiled.
 """
 
@@ -11,18 +14,20 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["closest_points_kernel", "positive_fraction_kernel"]
+__all__ = [
+    "circle_distance_kernel",
+    "circle_fit_equations",
+    "closest_pairs_within_kernel",
+    "closest_points_kernel",
+    "pairs_within_kernel",
+    "positive_fraction_kernel",
+    "segment_distance_kernel",
+]
 
 
 @njit(cache=True, error_model="numpy")
-def closest_points_kernel(points, segs):  # pragma: no cover - compiled
-    """The closest point of the segments ``(m, 2, 2)`` to each point ``(n, 2)``: ``(n, 2)``.
-
-    Per point and segment: ``s = clip(((p - a).(b - a)) / max(|b - a|^2, 1e-300), 0, 1)``,
-    ``c = a + s (b - a)``; the segment of the smallest ``|p - c|^2`` wins (the
-    first of equal ones, as ``argmin``).
-    """
-    n = points.shape[0]
+def _segment_arrays(segs):  # pragma: no cover - compiled
+    """Segments ``(m, 2, 2)``: starts ``a``, directions ``b - a``, ``max(|b - a|^2, 1e-300)``."""
     m = segs.shape[0]
     ax = np.empty(m)
     ay = np.empty(m)
@@ -35,6 +40,45 @@ def closest_points_kernel(points, segs):  # pragma: no cover - compiled
         bx[j] = segs[j, 1, 0] - ax[j]
         by[j] = segs[j, 1, 1] - ay[j]
         ab2[j] = max(bx[j] * bx[j] + by[j] * by[j], 1e-300)
+    return ax, ay, bx, by, ab2
+
+
+@njit(cache=True, error_model="numpy")
+def _circle_distance(s, eta, A, B, D):  # pragma: no cover - compiled
+    r"""Signed distance to the circle :math:`\eta = A(s^2 + \eta^2) + Bs + D` and its derivatives.
+
+    :math:`d = 2F/(\sqrt{1 + B^2 - 4AD} + |\nabla F|)`, :math:`F = \eta - A(s^2 + \eta^2) - Bs
+    - D`: exact for a circle (and for the line :math:`A = 0`), positive on the side of
+    :math:`+\eta`. Returns ``d`` and :math:`\partial d/\partial(A, B, D)` (scalars).
+    """
+    q = s * s + eta * eta
+    F = eta - A * q - B * s - D
+    t = 1.0 + B * B - 4.0 * A * D
+    if t < 1e-300:  # (a NaN stays NaN)
+        t = 1e-300
+    den = np.sqrt(t)
+    gx = -2.0 * A * s - B
+    gy = 1.0 - 2.0 * A * eta
+    G = np.sqrt(gx * gx + gy * gy)
+    S = den + G
+    d = 2.0 * F / S
+    dA = (-2.0 * q - d * (-2.0 * D / den - 2.0 * (s * gx + eta * gy) / G)) / S
+    dB = (-2.0 * s - d * (B / den - gx / G)) / S
+    dD = (-2.0 + d * 2.0 * A / den) / S
+    return d, dA, dB, dD
+
+
+@njit(cache=True, error_model="numpy")
+def closest_points_kernel(points, segs):  # pragma: no cover - compiled
+    """The closest point of the segments ``(m, 2, 2)`` to each point ``(n, 2)``: ``(n, 2)``.
+
+    Per point and segment: ``s = clip(((p - a).(b - a)) / max(|b - a|^2, 1e-300), 0, 1)``,
+    ``c = a + s (b - a)``; the segment of the smallest ``|p - c|^2`` wins (the
+    first of equal ones, as ``argmin``).
+    """
+    n = points.shape[0]
+    m = segs.shape[0]
+    ax, ay, bx, by, ab2 = _segment_arrays(segs)
     out = np.empty((n, 2))
     if m == 0:
         out[:] = np.nan
@@ -112,4 +156,335 @@ def positive_fraction_kernel(vals):  # pragma: no cover - compiled
         elif f > 1.0:
             f = 1.0
         out[i] = f if npos == 1 else 1.0 - f
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def segment_distance_kernel(points, segs, cap):  # pragma: no cover - compiled
+    """Distance ``(n,)`` of each point ``(n, 2)`` to the nearest segment ``(m, 2, 2)``.
+
+    Per pair: ``s = clip(((p - a).(b - a)) / max(|b - a|^2, 1e-300), 0, 1)``,
+    ``d = (p - a) - s (b - a)``, ``|d|^2``; a point's distance is the square root
+    of its smallest ``|d|^2``. Only segments that can be nearest are measured: the
+    segments are listed in square buckets (each in every bucket its bounding box
+    touches) and each point scans the buckets in rings around its own, nearest
+    first, until the next ring lies farther than the nearest segment found, or
+    than ``cap``. Exact wherever the distance is ``<= cap``; beyond ``cap`` it is
+    ``inf`` or a distance ``> cap`` (``cap = inf``: exact everywhere).
+    """
+    n = points.shape[0]
+    m = segs.shape[0]
+    out = np.full(n, np.inf)
+    if m == 0 or n == 0:
+        return out
+    ax, ay, bx, by, ab2 = _segment_arrays(segs)
+    lox = hix = segs[0, 0, 0]
+    loy = hiy = segs[0, 0, 1]
+    for j in range(m):
+        for k in range(2):
+            lox = min(lox, segs[j, k, 0])
+            hix = max(hix, segs[j, k, 0])
+            loy = min(loy, segs[j, k, 1])
+            hiy = max(hiy, segs[j, k, 1])
+    # bucket side: about one segment per bucket of the box, at least cap / 16 (a point
+    # within cap scans at most 33 x 33 buckets), at most 4096 buckets a side
+    span = max(hix - lox, hiy - loy)
+    b = np.sqrt((hix - lox) * (hiy - loy) / m)
+    if cap < np.inf:
+        b = max(b, cap / 16.0)
+    b = max(b, span / 4096.0)
+    if not b > 0.0:
+        b = 1.0
+    nbx = min(int((hix - lox) / b) + 1, 4097)
+    nby = min(int((hiy - loy) / b) + 1, 4097)
+    # the buckets' segment lists (CSR): every bucket of a segment's bounding box
+    i0 = np.empty(m, dtype=np.int64)
+    i1 = np.empty(m, dtype=np.int64)
+    j0 = np.empty(m, dtype=np.int64)
+    j1 = np.empty(m, dtype=np.int64)
+    ptr = np.zeros(nbx * nby + 1, dtype=np.int64)
+    for s in range(m):
+        i0[s] = min(int((min(ax[s], ax[s] + bx[s]) - lox) / b), nbx - 1)
+        i1[s] = min(int((max(ax[s], ax[s] + bx[s]) - lox) / b), nbx - 1)
+        j0[s] = min(int((min(ay[s], ay[s] + by[s]) - loy) / b), nby - 1)
+        j1[s] = min(int((max(ay[s], ay[s] + by[s]) - loy) / b), nby - 1)
+        for i in range(i0[s], i1[s] + 1):
+            for j in range(j0[s], j1[s] + 1):
+                ptr[i * nby + j + 1] += 1
+    for k in range(nbx * nby):
+        ptr[k + 1] += ptr[k]
+    fill = ptr[:-1].copy()
+    lst = np.empty(ptr[-1], dtype=np.int64)
+    for s in range(m):
+        for i in range(i0[s], i1[s] + 1):
+            for j in range(j0[s], j1[s] + 1):
+                lst[fill[i * nby + j]] = s
+                fill[i * nby + j] += 1
+    for q in range(n):
+        px = points[q, 0]
+        py = points[q, 1]
+        # outside the box by more than cap: no segment within cap
+        ox = max(lox - px, 0.0, px - hix)
+        oy = max(loy - py, 0.0, py - hiy)
+        if ox > cap or oy > cap:
+            continue
+        ci = min(max(int(np.floor((px - lox) / b)), 0), nbx - 1)
+        cj = min(max(int(np.floor((py - loy) / b)), 0), nby - 1)
+        best = np.inf
+        r = 0
+        while True:
+            for i in range(max(ci - r, 0), min(ci + r, nbx - 1) + 1):
+                if i == ci - r or i == ci + r:  # the ring's first and last column: all of it
+                    ja, jb, jd = max(cj - r, 0), min(cj + r, nby - 1), 1
+                else:  # the columns between: the ring's two ends only
+                    ja, jb, jd = cj - r, cj + r, max(2 * r, 1)
+                for j in range(ja, jb + 1, jd):
+                    if j < 0 or j >= nby:
+                        continue
+                    for k in range(ptr[i * nby + j], ptr[i * nby + j + 1]):
+                        s = lst[k]
+                        apx = px - ax[s]
+                        apy = py - ay[s]
+                        t = (apx * bx[s] + apy * by[s]) / ab2[s]
+                        t = min(max(t, 0.0), 1.0)
+                        dx = apx - t * bx[s]
+                        dy = apy - t * by[s]
+                        d2 = dx * dx + dy * dy
+                        if d2 < best:
+                            best = d2
+            # the buckets not scanned yet are at least `low` away from the point
+            low = np.inf
+            if ci + r + 1 < nbx:
+                low = min(low, max(lox + (ci + r + 1) * b - px, 0.0))
+            if ci - r - 1 >= 0:
+                low = min(low, max(px - (lox + (ci - r) * b), 0.0))
+            if cj + r + 1 < nby:
+                low = min(low, max(loy + (cj + r + 1) * b - py, 0.0))
+            if cj - r - 1 >= 0:
+                low = min(low, max(py - (loy + (cj - r) * b), 0.0))
+            if low == np.inf or low * low >= best or low > cap:
+                break
+            r += 1
+        out[q] = np.sqrt(best)
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def pairs_within_kernel(centres, points, radius):  # pragma: no cover - compiled
+    """Index pairs ``(centre, point)`` closer than ``radius``: two ``(k,)`` arrays.
+
+    Buckets of side ``radius`` from the common lower corner ``lo``: a point in
+    bucket ``floor((x - lo) / radius)``; each centre is paired with the points of
+    the 3 x 3 buckets around its own, whose squared distance ``dx^2 + dy^2`` is
+    ``< radius^2``. The pairs come in the order of the numpy expression this
+    replaces: by bucket offset (dx, then dy, each -1, 0, 1), then centre, then
+    point index.
+    """
+    nc = centres.shape[0]
+    npt = points.shape[0]
+    lo0 = min(centres[:, 0].min(), points[:, 0].min())
+    lo1 = min(centres[:, 1].min(), points[:, 1].min())
+    pb0 = np.empty(npt, dtype=np.int64)
+    pb1 = np.empty(npt, dtype=np.int64)
+    cb0 = np.empty(nc, dtype=np.int64)
+    cb1 = np.empty(nc, dtype=np.int64)
+    m0 = 0
+    m1 = 0
+    for i in range(npt):
+        pb0[i] = np.int64(np.floor((points[i, 0] - lo0) / radius))
+        pb1[i] = np.int64(np.floor((points[i, 1] - lo1) / radius))
+        m0 = max(m0, pb0[i])
+        m1 = max(m1, pb1[i])
+    for i in range(nc):
+        cb0[i] = np.int64(np.floor((centres[i, 0] - lo0) / radius))
+        cb1[i] = np.int64(np.floor((centres[i, 1] - lo1) / radius))
+        m0 = max(m0, cb0[i])
+        m1 = max(m1, cb1[i])
+    ny = m1 + 3
+    nkey = (m0 + 3) * ny
+    ptr = np.zeros(nkey + 1, dtype=np.int64)
+    for i in range(npt):
+        ptr[(pb0[i] + 1) * ny + pb1[i] + 2] += 1
+    for k in range(nkey):
+        ptr[k + 1] += ptr[k]
+    fill = ptr[:-1].copy()
+    order = np.empty(npt, dtype=np.int64)
+    for i in range(npt):  # stable: a bucket's points in index order
+        key = (pb0[i] + 1) * ny + pb1[i] + 1
+        order[fill[key]] = i
+        fill[key] += 1
+    total = 0
+    for dx in range(-1, 2):
+        for dy in range(-1, 2):
+            for c in range(nc):
+                k = (cb0[c] + 1 + dx) * ny + cb1[c] + 1 + dy
+                total += ptr[k + 1] - ptr[k]
+    ci = np.empty(total, dtype=np.int64)
+    pi = np.empty(total, dtype=np.int64)
+    r2 = radius * radius
+    n = 0
+    for dx in range(-1, 2):
+        for dy in range(-1, 2):
+            for c in range(nc):
+                k = (cb0[c] + 1 + dx) * ny + cb1[c] + 1 + dy
+                for j in range(ptr[k], ptr[k + 1]):
+                    q = order[j]
+                    ex = points[q, 0] - centres[c, 0]
+                    ey = points[q, 1] - centres[c, 1]
+                    if ex * ex + ey * ey < r2:
+                        ci[n] = c
+                        pi[n] = q
+                        n += 1
+    return ci[:n].copy(), pi[:n].copy()
+
+
+@njit(cache=True, error_model="numpy")
+def circle_fit_equations(ci, s, eta, w, y, p, m):  # pragma: no cover - compiled
+    r"""One Gauss–Newton step's normal equations of the per-segment circle fits.
+
+    Pair ``k`` (segment ``ci[k]``, a sample at ``(s, eta)`` in the segment's frame,
+    weight ``w``, value ``y``) against the segment's fit ``p = (lambda, A, B, D)``:
+    the signed distance ``d`` to the circle :math:`\eta = A(s^2 + \eta^2) + Bs + D`
+    and its derivatives (:func:`_circle_distance`), ``J = (d, lambda dA, lambda dB,
+    lambda dD)``; returns ``M (m, 4, 4)`` = sum of ``w J_i J_j`` and ``rhs (m, 4)`` = sum of
+    ``w (y - lambda d) J_i`` per segment, summed in pair order (as ``bincount``).
+    """
+    M = np.zeros((m, 4, 4))
+    rhs = np.zeros((m, 4))
+    J = np.empty(4)
+    for k in range(ci.shape[0]):
+        c = ci[k]
+        lam = p[c, 0]
+        A = p[c, 1]
+        B = p[c, 2]
+        D = p[c, 3]
+        d, dA, dB, dD = _circle_distance(s[k], eta[k], A, B, D)
+        J[0] = d
+        J[1] = lam * dA
+        J[2] = lam * dB
+        J[3] = lam * dD
+        wk = w[k]
+        res = wk * (y[k] - lam * d)
+        for i in range(4):
+            for j in range(i, 4):
+                M[c, i, j] += wk * J[i] * J[j]
+            rhs[c, i] += res * J[i]
+    for c in range(m):
+        for i in range(4):
+            for j in range(i + 1, 4):
+                M[c, j, i] = M[c, i, j]
+    return M, rhs
+
+
+@njit(cache=True, error_model="numpy")
+def closest_pairs_within_kernel(points, segs, radius, tol):  # pragma: no cover - compiled
+    """Pairs ``(point, segment)`` within ``tol`` of the point's closest segment: two ``(k,)``.
+
+    Only segments whose midpoint is within ``radius`` of the point (squared distance
+    ``< radius^2``, buckets of side ``radius``) count. Distance per pair:
+    ``t = clip(((p - a).(b - a)) / max(|b - a|^2, 1e-300), 0, 1)``,
+    ``sqrt(|(p - a) - t (b - a)|^2)``. Sorted by point, then segment.
+    """
+    n = points.shape[0]
+    m = segs.shape[0]
+    mx = np.empty(m)
+    my = np.empty(m)
+    lo0 = np.inf
+    lo1 = np.inf
+    hi0 = -np.inf
+    hi1 = -np.inf
+    for j in range(m):
+        mx[j] = (segs[j, 0, 0] + segs[j, 1, 0]) / 2.0
+        my[j] = (segs[j, 0, 1] + segs[j, 1, 1]) / 2.0
+        lo0 = min(lo0, mx[j])
+        lo1 = min(lo1, my[j])
+        hi0 = max(hi0, mx[j])
+        hi1 = max(hi1, my[j])
+    nbx = int(np.floor((hi0 - lo0) / radius)) + 1
+    nby = int(np.floor((hi1 - lo1) / radius)) + 1
+    ptr = np.zeros(nbx * nby + 1, dtype=np.int64)
+    key = np.empty(m, dtype=np.int64)
+    for j in range(m):
+        key[j] = int(np.floor((mx[j] - lo0) / radius)) * nby + int(np.floor((my[j] - lo1) / radius))
+        ptr[key[j] + 1] += 1
+    for k in range(nbx * nby):
+        ptr[k + 1] += ptr[k]
+    fill = ptr[:-1].copy()
+    lst = np.empty(m, dtype=np.int64)
+    for j in range(m):
+        lst[fill[key[j]]] = j
+        fill[key[j]] += 1
+    r2 = radius * radius
+    cand = np.empty(m, dtype=np.int64)
+    dist = np.empty(m)
+    out_p = np.empty(0, dtype=np.int64)
+    out_s = np.empty(0, dtype=np.int64)
+    n_out = 0
+    for q in range(n):
+        px = points[q, 0]
+        py = points[q, 1]
+        fi = np.floor((px - lo0) / radius)
+        fj = np.floor((py - lo1) / radius)
+        if fi < -1.0 or fj < -1.0 or fi > nbx or fj > nby:
+            continue
+        bi = int(fi)
+        bj = int(fj)
+        nc = 0
+        best = np.inf
+        for i in range(max(bi - 1, 0), min(bi + 1, nbx - 1) + 1):
+            for j in range(max(bj - 1, 0), min(bj + 1, nby - 1) + 1):
+                for k in range(ptr[i * nby + j], ptr[i * nby + j + 1]):
+                    sg = lst[k]
+                    ex = mx[sg] - px
+                    ey = my[sg] - py
+                    if not ex * ex + ey * ey < r2:
+                        continue
+                    ax = segs[sg, 0, 0]
+                    ay = segs[sg, 0, 1]
+                    bx = segs[sg, 1, 0] - ax
+                    by = segs[sg, 1, 1] - ay
+                    ab2 = bx * bx + by * by
+                    if ab2 < 1e-300:
+                        ab2 = 1e-300
+                    apx = px - ax
+                    apy = py - ay
+                    t = (apx * bx + apy * by) / ab2
+                    t = min(max(t, 0.0), 1.0)
+                    dx = apx - t * bx
+                    dy = apy - t * by
+                    dd = np.sqrt(dx * dx + dy * dy)
+                    cand[nc] = sg
+                    dist[nc] = dd
+                    nc += 1
+                    if dd < best:
+                        best = dd
+        # the pairs within tol of the closest, by segment index (insertion sort: few)
+        start = n_out
+        for c in range(nc):
+            if dist[c] <= best + tol:
+                if n_out == len(out_p):
+                    grow = max(16, 2 * len(out_p))
+                    np_ = np.empty(grow, dtype=np.int64)
+                    ns_ = np.empty(grow, dtype=np.int64)
+                    np_[:n_out] = out_p[:n_out]
+                    ns_[:n_out] = out_s[:n_out]
+                    out_p = np_
+                    out_s = ns_
+                out_p[n_out] = q
+                sg = cand[c]
+                k = n_out
+                while k > start and out_s[k - 1] > sg:
+                    out_s[k] = out_s[k - 1]
+                    k -= 1
+                out_s[k] = sg
+                n_out += 1
+    return out_p[:n_out].copy(), out_s[:n_out].copy()
+
+
+@njit(cache=True, error_model="numpy")
+def circle_distance_kernel(s, eta, A, B, D):  # pragma: no cover - compiled
+    """:func:`_circle_distance`'s ``d`` for arrays ``(n,)`` of points and circles (one each)."""
+    out = np.empty(s.shape[0])
+    for k in range(s.shape[0]):
+        out[k] = _circle_distance(s[k], eta[k], A[k], B[k], D[k])[0]
     return out

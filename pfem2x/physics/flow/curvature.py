@@ -17,6 +17,12 @@ from typing import Any
 
 import numpy as np
 
+from pfem2x.physics.flow._kernels import (
+    circle_distance_kernel,
+    circle_fit_equations,
+    closest_pairs_within_kernel,
+    pairs_within_kernel,
+)
 from pfem2x.physics.flow.interface import InterfaceGeometry, segment_distance
 
 __all__ = [
@@ -206,53 +212,16 @@ def segment_curvature(
     return kappa
 
 
-def _circle_distance(
-    s: np.ndarray, eta: np.ndarray, A: np.ndarray, B: np.ndarray, D: np.ndarray
-) -> tuple[np.ndarray, ...]:
-    r"""Signed distance to the circle :math:`\eta = A(s^2 + \eta^2) + Bs + D` and its derivatives.
-
-    :math:`d = 2F/(\sqrt{1 + B^2 - 4AD} + |\nabla F|)`, :math:`F = \eta - A(s^2 + \eta^2) - Bs
-    - D`: exact for a circle (and for the line :math:`A = 0`), positive on the side of
-    :math:`+\eta`. Returns ``d`` and :math:`\partial d/\partial(A, B, D)` (all arrays of
-    one shape).
-    """
-    q = s * s + eta * eta
-    F = eta - A * q - B * s - D
-    den = np.sqrt(np.maximum(1.0 + B * B - 4.0 * A * D, 1e-300))
-    gx, gy = -2.0 * A * s - B, 1.0 - 2.0 * A * eta
-    G = np.sqrt(gx * gx + gy * gy)
-    S = den + G
-    d = 2.0 * F / S
-    dA = (-2.0 * q - d * (-2.0 * D / den - 2.0 * (s * gx + eta * gy) / G)) / S
-    dB = (-2.0 * s - d * (B / den - gx / G)) / S
-    dD = (-2.0 + d * 2.0 * A / den) / S
-    return d, dA, dB, dD
-
-
 def _pairs_within(centres: np.ndarray, points: np.ndarray, radius: float) -> tuple[np.ndarray, ...]:
-    """Index pairs ``(centre, point)`` closer than ``radius`` (buckets of side ``radius``)."""
-    lo = np.minimum(centres.min(axis=0), points.min(axis=0))
-    pb = np.floor((points - lo) / radius).astype(np.int64)
-    cb = np.floor((centres - lo) / radius).astype(np.int64)
-    ny = int(max(pb[:, 1].max(), cb[:, 1].max())) + 3
-    key = (pb[:, 0] + 1) * ny + pb[:, 1] + 1
-    order = np.argsort(key, kind="stable")
-    nkey = (int(max(pb[:, 0].max(), cb[:, 0].max())) + 3) * ny
-    ptr = np.zeros(nkey + 1, dtype=np.int64)
-    np.cumsum(np.bincount(key, minlength=nkey), out=ptr[1:])
-    ci, pi = [], []
-    for dx in (-1, 0, 1):
-        for dy in (-1, 0, 1):
-            k = (cb[:, 0] + 1 + dx) * ny + cb[:, 1] + 1 + dy
-            cnt = ptr[k + 1] - ptr[k]
-            c = np.repeat(np.arange(len(centres)), cnt)
-            off = np.arange(len(c)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-            ci.append(c)
-            pi.append(order[ptr[k][c] + off])
-    c, q = np.concatenate(ci), np.concatenate(pi)
-    d = points[q] - centres[c]
-    near = np.einsum("kj,kj->k", d, d) < radius * radius
-    return c[near], q[near]
+    """Index pairs ``(centre, point)`` closer than ``radius`` (buckets of side ``radius``).
+
+    Compiled (:func:`~pfem2x.physics.flow._kernels.pairs_within_kernel`).
+    """
+    return pairs_within_kernel(
+        np.ascontiguousarray(centres, dtype=np.float64),
+        np.ascontiguousarray(points, dtype=np.float64),
+        float(radius),
+    )
 
 
 def distance_curvature(
@@ -268,7 +237,8 @@ def distance_curvature(
     The samples ``values`` (signed distances, > 0 in phase 1) at ``points`` within ``radius``
     of a segment's midpoint (weight :math:`(1 - d^2/r^2)^2`) are fitted by
     :math:`\lambda\,d(x)`, :math:`d` the exact signed distance to the circle :math:`\eta =
-    A(s^2 + \eta^2) + Bs + D` in the frame of the segment's normal (:func:`_circle_distance`;
+    A(s^2 + \eta^2) + Bs + D` in the frame of the segment's normal
+    (:func:`~pfem2x.physics.flow._kernels._circle_distance`;
     :math:`\lambda` takes up a stretched distance), by Gauss–Newton from the straight line;
     :math:`\kappa = 2A/\sqrt{1 + B^2 - 4AD}`. A circle's exact distances give its curvature
     to round-off, whatever the samples' positions (the end points of the P1 iso-line lie
@@ -307,21 +277,10 @@ def distance_curvature(
     y = values[pi]
     p = np.zeros((m, 4))
     p[:, 0] = 1.0  # (lambda, A, B, D), from the straight line
-    ij = [(i, j) for i in range(4) for j in range(i, 4)]
     for _ in range(iterations):
         # a fit that runs away overflows and ends non-finite: masked here, not ok below
         with np.errstate(all="ignore"):
-            dist, dA, dB, dD = _circle_distance(s, eta, p[ci, 1], p[ci, 2], p[ci, 3])
-            lam = p[ci, 0]
-            J = np.stack([dist, lam * dA, lam * dB, lam * dD], axis=1)
-            res = w * (y - lam * dist)
-            M = np.empty((m, 4, 4))
-            for i, j in ij:
-                wij = w * J[:, i] * J[:, j]
-                M[:, i, j] = M[:, j, i] = np.bincount(ci, weights=wij, minlength=m)
-            rhs = np.stack(
-                [np.bincount(ci, weights=res * J[:, i], minlength=m) for i in range(4)], 1
-            )
+            M, rhs = circle_fit_equations(ci, s, eta, w, y, p, m)
             M += (np.einsum("cii->c", M)[:, None, None] * 1e-13 + 1e-300) * np.eye(4)[None]
         bad = ~np.isfinite(M).all(axis=(1, 2)) | ~np.isfinite(rhs).all(axis=1)
         M[bad], rhs[bad] = np.eye(4), np.nan
@@ -349,7 +308,11 @@ def circle_misfit(
     ci, pi = _pairs_within(mid, points, radius)
     with np.errstate(all="ignore"):
         d = circle_distance(points[pi], segs[ci], normals[ci], coef[ci])
-    np.maximum.at(out, ci, np.where(np.isfinite(d), np.abs(d), np.inf))
+    if len(ci):
+        order = np.argsort(ci, kind="stable")
+        start = np.flatnonzero(np.r_[True, np.diff(ci[order]) != 0])
+        dev = np.where(np.isfinite(d), np.abs(d), np.inf)[order]
+        out[ci[order][start]] = np.maximum.reduceat(dev, start)
     return out
 
 
@@ -364,7 +327,9 @@ def circle_distance(
     d = points - segs.mean(axis=1)
     s = d[:, 0] * normals[:, 1] - d[:, 1] * normals[:, 0]
     eta = np.einsum("kj,kj->k", d, normals)
-    return _circle_distance(s, eta, coef[:, -3], coef[:, -2], coef[:, -1])[0]
+    return circle_distance_kernel(
+        s, eta, *(np.ascontiguousarray(coef[:, k], dtype=np.float64) for k in (-3, -2, -1))
+    )
 
 
 def smooth_along(segs: np.ndarray, values: np.ndarray, radius: float) -> np.ndarray:
@@ -519,20 +484,12 @@ def closest_pairs_within(
     """
     if len(points) == 0 or len(segs) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    pi, si = _pairs_within(points, segs.mean(axis=1), radius)
-    a = segs[si, 0]
-    ab = segs[si, 1] - a
-    ab2 = np.maximum(np.einsum("kj,kj->k", ab, ab), 1e-300)
-    ap = points[pi] - a
-    t = np.clip(np.einsum("kj,kj->k", ap, ab) / ab2, 0.0, 1.0)
-    d = ap - t[:, None] * ab
-    dist = np.sqrt(np.einsum("kj,kj->k", d, d))
-    best = np.full(len(points), np.inf)
-    np.minimum.at(best, pi, dist)
-    keep = dist <= best[pi] + tol
-    pi, si = pi[keep], si[keep]
-    order = np.lexsort((si, pi))  # (sorted as closest_pairs returns them)
-    return pi[order], si[order]
+    return closest_pairs_within_kernel(
+        np.ascontiguousarray(points, dtype=np.float64),
+        np.ascontiguousarray(segs, dtype=np.float64),
+        float(radius),
+        float(tol),
+    )
 
 
 def closest_mean(

@@ -17,7 +17,7 @@ import ufl
 
 from pfem2x import compat
 from pfem2x.compat import MPI
-from pfem2x.physics.flow._kernels import positive_fraction_kernel
+from pfem2x.physics.flow._kernels import positive_fraction_kernel, segment_distance_kernel
 
 __all__ = ["InterfaceGeometry", "cut_segments", "positive_fraction", "segment_distance"]
 
@@ -67,39 +67,7 @@ def cut_segments(vals: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return np.take_along_axis(pts, idx[:, :, None], axis=1)
 
 
-class _Segments:
-    """Segments ``(m, 2, 2)`` prepared for point distances (start, direction, squared length)."""
-
-    def __init__(self, segs: np.ndarray):
-        self.segs = segs
-        self.a = segs[:, 0]
-        self.ab = segs[:, 1] - self.a
-        self.ab2 = np.maximum(np.einsum("ij,ij->i", self.ab, self.ab), 1e-300)
-
-    def measure(self, points: np.ndarray, pi: np.ndarray, si: np.ndarray) -> np.ndarray:
-        """Squared distances of the pairs ``(points[pi], segment si)``."""
-        a, ab, ab2 = self.a, self.ab, self.ab2
-        ap = points[pi] - a[si]
-        s = np.clip(np.einsum("kj,kj->k", ap, ab[si]) / ab2[si], 0.0, 1.0)
-        d = ap - s[:, None] * ab[si]
-        return np.einsum("kj,kj->k", d, d)
-
-    def all_pairs(self, points: np.ndarray, out: np.ndarray, chunk: int) -> np.ndarray:
-        """Distance of every point to its nearest segment, all pairs (chunks of points)."""
-        n, m = len(points), len(self.segs)
-        a, ab, ab2 = self.a, self.ab, self.ab2
-        step = max(1, chunk // m)
-        for k in range(0, n, step):
-            ap = points[k : k + step, None, :] - a[None, :, :]
-            s = np.clip(np.einsum("nmj,mj->nm", ap, ab) / ab2, 0.0, 1.0)
-            d = ap - s[:, :, None] * ab[None, :, :]
-            out[k : k + step] = np.sqrt(np.min(np.einsum("nmj,nmj->nm", d, d), axis=1))
-        return out
-
-
-def segment_distance(
-    points: np.ndarray, segs: np.ndarray, cap: float | None = None, chunk: int = 4_000_000
-) -> np.ndarray:
+def segment_distance(points: np.ndarray, segs: np.ndarray, cap: float | None = None) -> np.ndarray:
     """Distance from each point ``(n, 2)`` to the nearest of the segments ``(m, 2, 2)``.
 
     Parameters
@@ -110,76 +78,27 @@ def segment_distance(
         Segments, shape ``(m, 2, 2)`` (two end points each).
     cap
         Only distances up to ``cap`` are needed: a point farther than ``cap`` from
-        every segment gets ``inf`` (or a distance ``> cap``). Segments are then
-        binned into square buckets and each point is measured only against the
-        segments within ``cap`` of its bucket, which turns the all-pairs cost
-        ``n * m`` into about ``m * (points within cap of a segment)``.
-    chunk
-        Largest number of point-segment pairs measured at once (memory bound).
+        every segment gets ``inf`` (or a distance ``> cap``), and the search stops
+        there. ``None`` (or not a positive finite number): exact everywhere.
 
     Returns
     -------
     numpy.ndarray
         Distances, shape ``(n,)``; exact wherever they are ``<= cap``.
+
+    Notes
+    -----
+    Compiled (:func:`~pfem2x.physics.flow._kernels.segment_distance_kernel`): the
+    segments are binned into square buckets, and each point scans the buckets in
+    rings around its own until the next ring is farther than the nearest segment
+    found (or than ``cap``). The cost is about the number of segments and buckets
+    within that distance of each point, not ``n * m``.
     """
-    n, m = len(points), len(segs)
-    out = np.full(n, np.inf)
-    if m == 0 or n == 0:
-        return out
-    sg = _Segments(segs)
     if cap is None or not np.isfinite(cap) or cap <= 0.0:
-        return sg.all_pairs(points, out, chunk)
-    return _bucketed_distance(points, sg, cap, chunk, out)
-
-
-def _bucketed_distance(
-    points: np.ndarray, sg: _Segments, cap: float, chunk: int, out: np.ndarray
-) -> np.ndarray:
-    """:func:`segment_distance` with ``cap``: point buckets against nearby segments only."""
-    segs = sg.segs
-    n, m = len(points), len(segs)
-    # buckets of side b; a segment is listed in every bucket its box (grown by cap) touches
-    lo = np.minimum(points.min(axis=0), segs.reshape(-1, 2).min(axis=0)) - cap
-    hi = np.maximum(points.max(axis=0), segs.reshape(-1, 2).max(axis=0)) + cap
-    b = max(0.5 * cap, float(np.sqrt(np.prod(hi - lo) / (4.0 * n + 4.0 * m))))
-    nb = np.maximum(1, np.ceil((hi - lo) / b).astype(np.int64))
-
-    def cell(xy: np.ndarray) -> np.ndarray:
-        return np.clip(((xy - lo) / b).astype(np.int64), 0, nb - 1)
-
-    i0 = cell(np.minimum(segs[:, 0], segs[:, 1]) - cap)
-    i1 = cell(np.maximum(segs[:, 0], segs[:, 1]) + cap)
-    span = i1 - i0 + 1
-    cnt = span[:, 0] * span[:, 1]
-    if cnt.sum() > max(chunk, 64 * (n + m)):  # long segments: bucket lists would not pay
-        return sg.all_pairs(points, out, chunk)
-    seg_of = np.repeat(np.arange(m), cnt)
-    k = np.arange(len(seg_of)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-    bx = i0[seg_of, 0] + k // span[seg_of, 1]
-    by = i0[seg_of, 1] + k % span[seg_of, 1]
-    bucket = bx * nb[1] + by
-    order = np.argsort(bucket, kind="stable")
-    seg_sorted = seg_of[order]
-    ptr = np.zeros(nb[0] * nb[1] + 1, dtype=np.int64)
-    np.cumsum(np.bincount(bucket, minlength=nb[0] * nb[1]), out=ptr[1:])
-    pc = cell(points)
-    pb = pc[:, 0] * nb[1] + pc[:, 1]
-    c = ptr[pb + 1] - ptr[pb]
-    has = np.flatnonzero(c)
-    cs = np.cumsum(c[has])
-    first = 0
-    while first < len(has):  # chunks of whole points, about `chunk` pairs each
-        last = int(np.searchsorted(cs, (cs[first - 1] if first else 0) + chunk, side="right"))
-        last = max(last, first + 1)
-        pts = has[first:last]
-        cc = c[pts]
-        pi = np.repeat(pts, cc)
-        off = np.arange(len(pi)) - np.repeat(np.cumsum(cc) - cc, cc)
-        si = seg_sorted[np.repeat(ptr[pb[pts]], cc) + off]
-        d2 = sg.measure(points, pi, si)
-        out[pts] = np.sqrt(np.minimum.reduceat(d2, np.cumsum(cc) - cc))
-        first = last
-    return out
+        cap = np.inf
+    pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 2)
+    sg = np.ascontiguousarray(segs, dtype=np.float64).reshape(-1, 2, 2)
+    return segment_distance_kernel(pts, sg, float(cap))
 
 
 class InterfaceGeometry:
