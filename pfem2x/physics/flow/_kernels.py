@@ -69,42 +69,6 @@ def _circle_distance(s, eta, A, B, D):  # pragma: no cover - compiled
 
 
 @njit(cache=True, error_model="numpy")
-def closest_points_kernel(points, segs):  # pragma: no cover - compiled
-    """The closest point of the segments ``(m, 2, 2)`` to each point ``(n, 2)``: ``(n, 2)``.
-
-    Per point and segment: ``s = clip(((p - a).(b - a)) / max(|b - a|^2, 1e-300), 0, 1)``,
-    ``c = a + s (b - a)``; the segment of the smallest ``|p - c|^2`` wins (the
-    first of equal ones, as ``argmin``).
-    """
-    n = points.shape[0]
-    m = segs.shape[0]
-    ax, ay, bx, by, ab2 = _segment_arrays(segs)
-    out = np.empty((n, 2))
-    if m == 0:
-        out[:] = np.nan
-        return out
-    d2 = np.empty(m)
-    for i in range(n):
-        px = points[i, 0]
-        py = points[i, 1]
-        for j in range(m):  # branch-free: vectorised by LLVM
-            s = ((px - ax[j]) * bx[j] + (py - ay[j]) * by[j]) / ab2[j]
-            s = min(max(s, 0.0), 1.0)
-            dx = px - (ax[j] + s * bx[j])
-            dy = py - (ay[j] + s * by[j])
-            d2[j] = dx * dx + dy * dy
-        k = 0
-        for j in range(1, m):
-            if d2[j] < d2[k]:
-                k = j
-        s = ((px - ax[k]) * bx[k] + (py - ay[k]) * by[k]) / ab2[k]
-        s = min(max(s, 0.0), 1.0)
-        out[i, 0] = ax[k] + s * bx[k]
-        out[i, 1] = ay[k] + s * by[k]
-    return out
-
-
-@njit(cache=True, error_model="numpy")
 def positive_fraction_kernel(vals):  # pragma: no cover - compiled
     """Area fraction of each triangle ``(n, 3)`` where the linear interpolant is > 0.
 
@@ -160,23 +124,24 @@ def positive_fraction_kernel(vals):  # pragma: no cover - compiled
 
 
 @njit(cache=True, error_model="numpy")
-def segment_distance_kernel(points, segs, cap):  # pragma: no cover - compiled
-    """Distance ``(n,)`` of each point ``(n, 2)`` to the nearest segment ``(m, 2, 2)``.
+def _nearest_segment(points, segs, cap, projected):  # pragma: no cover - compiled
+    """The nearest segment ``(m, 2, 2)`` to each point ``(n, 2)``: ``|d|^2`` and index ``(n,)``.
 
-    Per pair: ``s = clip(((p - a).(b - a)) / max(|b - a|^2, 1e-300), 0, 1)``,
-    ``d = (p - a) - s (b - a)``, ``|d|^2``; a point's distance is the square root
-    of its smallest ``|d|^2``. Only segments that can be nearest are measured: the
-    segments are listed in square buckets (each in every bucket its bounding box
-    touches) and each point scans the buckets in rings around its own, nearest
-    first, until the next ring lies farther than the nearest segment found, or
-    than ``cap``. Exact wherever the distance is ``<= cap``; beyond ``cap`` it is
-    ``inf`` or a distance ``> cap`` (``cap = inf``: exact everywhere).
+    Per pair, with ``s = clip(((p - a).(b - a)) / max(|b - a|^2, 1e-300), 0, 1)``:
+    ``d = (p - a) - s (b - a)``, or with ``projected`` ``d = p - (a + s (b - a))``
+    (the closest point first). Of equal ``|d|^2`` the lowest index wins. Only
+    segments that can be nearest are measured: the segments are listed in square
+    buckets (each in every bucket its bounding box touches) and each point scans
+    the buckets in rings around its own, nearest first, until the next ring lies
+    farther than the nearest segment found, or than ``cap``. Exact wherever the
+    distance is ``<= cap``; beyond ``cap`` ``inf`` (index -1) or a distance ``> cap``.
     """
     n = points.shape[0]
     m = segs.shape[0]
-    out = np.full(n, np.inf)
+    best2 = np.full(n, np.inf)
+    near = np.full(n, -1, dtype=np.int64)
     if m == 0 or n == 0:
-        return out
+        return best2, near
     ax, ay, bx, by, ab2 = _segment_arrays(segs)
     lox = hix = segs[0, 0, 0]
     loy = hiy = segs[0, 0, 1]
@@ -224,13 +189,12 @@ def segment_distance_kernel(points, segs, cap):  # pragma: no cover - compiled
         px = points[q, 0]
         py = points[q, 1]
         # outside the box by more than cap: no segment within cap
-        ox = max(lox - px, 0.0, px - hix)
-        oy = max(loy - py, 0.0, py - hiy)
-        if ox > cap or oy > cap:
+        if max(lox - px, 0.0, px - hix) > cap or max(loy - py, 0.0, py - hiy) > cap:
             continue
         ci = min(max(int(np.floor((px - lox) / b)), 0), nbx - 1)
         cj = min(max(int(np.floor((py - loy) / b)), 0), nby - 1)
         best = np.inf
+        bs = -1
         r = 0
         while True:
             for i in range(max(ci - r, 0), min(ci + r, nbx - 1) + 1):
@@ -247,12 +211,18 @@ def segment_distance_kernel(points, segs, cap):  # pragma: no cover - compiled
                         apy = py - ay[s]
                         t = (apx * bx[s] + apy * by[s]) / ab2[s]
                         t = min(max(t, 0.0), 1.0)
-                        dx = apx - t * bx[s]
-                        dy = apy - t * by[s]
+                        if projected:
+                            dx = px - (ax[s] + t * bx[s])
+                            dy = py - (ay[s] + t * by[s])
+                        else:
+                            dx = apx - t * bx[s]
+                            dy = apy - t * by[s]
                         d2 = dx * dx + dy * dy
-                        if d2 < best:
+                        if d2 < best or (d2 == best and s < bs):
                             best = d2
-            # the buckets not scanned yet are at least `low` away from the point
+                            bs = s
+            # the buckets not scanned yet are at least `low` away from the point (the
+            # margin: a tie there, computed with other round-off, is still scanned)
             low = np.inf
             if ci + r + 1 < nbx:
                 low = min(low, max(lox + (ci + r + 1) * b - px, 0.0))
@@ -262,10 +232,47 @@ def segment_distance_kernel(points, segs, cap):  # pragma: no cover - compiled
                 low = min(low, max(loy + (cj + r + 1) * b - py, 0.0))
             if cj - r - 1 >= 0:
                 low = min(low, max(py - (loy + (cj - r) * b), 0.0))
-            if low == np.inf or low * low >= best or low > cap:
+            if low == np.inf or low * low > best * (1.0 + 1e-9) or low > cap:
                 break
             r += 1
-        out[q] = np.sqrt(best)
+        best2[q] = best
+        near[q] = bs
+    return best2, near
+
+
+@njit(cache=True, error_model="numpy")
+def segment_distance_kernel(points, segs, cap):  # pragma: no cover - compiled
+    """Distance ``(n,)`` of each point ``(n, 2)`` to the nearest segment ``(m, 2, 2)``.
+
+    :func:`_nearest_segment`'s ``sqrt(|(p - a) - s (b - a)|^2)``: exact wherever it is
+    ``<= cap``; beyond ``cap`` it is ``inf`` or a distance ``> cap`` (``cap = inf``:
+    exact everywhere).
+    """
+    return np.sqrt(_nearest_segment(points, segs, cap, False)[0])
+
+
+@njit(cache=True, error_model="numpy")
+def closest_points_kernel(points, segs):  # pragma: no cover - compiled
+    """The closest point of the segments ``(m, 2, 2)`` to each point ``(n, 2)``: ``(n, 2)``.
+
+    The segment of the smallest ``|p - c|^2``, ``c = a + s (b - a)`` with
+    ``s = clip(((p - a).(b - a)) / max(|b - a|^2, 1e-300), 0, 1)``, wins (the lowest
+    index of equal ones; :func:`_nearest_segment`), and its ``c`` is returned; NaN
+    without segments.
+    """
+    n = points.shape[0]
+    out = np.empty((n, 2))
+    if segs.shape[0] == 0:
+        out[:] = np.nan
+        return out
+    ax, ay, bx, by, ab2 = _segment_arrays(segs)
+    k_of = _nearest_segment(points, segs, np.inf, True)[1]
+    for i in range(n):
+        k = k_of[i]
+        s = ((points[i, 0] - ax[k]) * bx[k] + (points[i, 1] - ay[k]) * by[k]) / ab2[k]
+        s = min(max(s, 0.0), 1.0)
+        out[i, 0] = ax[k] + s * bx[k]
+        out[i, 1] = ay[k] + s * by[k]
     return out
 
 

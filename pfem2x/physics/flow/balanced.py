@@ -138,8 +138,8 @@ class JumpForce:
 def closest_points(points: np.ndarray, segs: np.ndarray) -> np.ndarray:
     """The closest point of the segments ``(m, 2, 2)`` to each point ``(n, 2)``: ``(n, 2)``.
 
-    Every point against every segment, compiled
-    (:func:`~pfem2x.physics.flow._kernels.closest_points_kernel`).
+    Compiled (:func:`~pfem2x.physics.flow._kernels.closest_points_kernel`): each point
+    against the segments of the buckets around it, nearest first, not all of them.
     """
     pts = np.ascontiguousarray(points, dtype=np.float64)
     return closest_points_kernel(pts, np.ascontiguousarray(segs, dtype=np.float64))
