@@ -13,6 +13,11 @@ shared machine the CPU time is less disturbed by other jobs than the wall time).
         --repeat 3 --out step_cost.json
     python benchmarks/step_cost.py table step_cost.json > step_cost.md
 
+``--scene NAME`` (repeatable) runs only those scenes, ``--scene NAME:VARIANT`` a
+variant of one; ``--frame`` only those frames. Each run also reports its set-up
+seconds (``setup_seconds``: mesh, forms, particles, initial fields), a column of
+the table.
+
 A checkout is a folder holding a ``pfem2x`` package (e.g. ``git worktree add``
 of an earlier commit, its particle kernels compiled once with
 ``python -m pfem2x.jit``). Only scenes present in every checkout are run.
@@ -41,26 +46,37 @@ QUIET_OUTPUT = (
 )
 
 
-def scenes(checkouts: dict[str, Path]) -> list[tuple[str, str]]:
-    """``(scene, frame)`` of every scene present in every checkout, in every frame."""
+def scenes(
+    checkouts: dict[str, Path], only: list[str] | None = None, frames: list[str] | None = None
+) -> list[tuple[str, str]]:
+    """``(scene, frame)`` of every scene present in every checkout, in every frame.
+
+    ``only``: those scenes (``NAME`` or ``NAME:VARIANT``); ``frames``: those frames.
+    """
     names = None
     for root in checkouts.values():
         here = {p.stem for p in (root / "pfem2x" / "scenes").glob("*.toml")}
         names = here if names is None else names & here
     first = next(iter(checkouts.values()))
+    wanted = only or sorted(names or ())
     out = []
-    for name in sorted(names or ()):
+    for item in wanted:
+        name = item.partition(":")[0]
+        if name not in (names or ()):
+            raise ValueError(f"--scene {item}: no such scene in every checkout")
         text = (first / "pfem2x" / "scenes" / f"{name}.toml").read_text(encoding="utf-8")
         physics = tomllib.loads(text)["scene"]["physics"]
-        out.extend((name, frame) for frame in FRAMES[physics])
+        out.extend((item, f) for f in FRAMES[physics] if not frames or f in frames)
     return out
 
 
 def run_one(root: Path, scene: str, frame: str, tmp: Path) -> dict:
-    """Run ``scene`` in ``frame`` with the package of ``root``; its steps and per-step cost."""
+    """Run ``scene`` (``NAME[:VARIANT]``) in ``frame`` with the package of ``root``: its cost."""
     env = dict(os.environ, OMP_NUM_THREADS="1", PYTHONPATH=str(root))
-    out = tmp / f"{scene}-{frame}"
-    cmd = [sys.executable, "-m", "pfem2x", "run", scene, "--quiet", "--overwrite"]
+    name, _, variant = scene.partition(":")
+    out = tmp / f"{name}-{variant}-{frame}"
+    cmd = [sys.executable, "-m", "pfem2x", "run", name, "--quiet", "--overwrite"]
+    cmd += ["--variant", variant] if variant else []
     cmd += ["--out", str(out), "--set", f'method.frame="{frame}"']
     for kv in QUIET_OUTPUT:
         cmd += ["--set", kv]
@@ -75,12 +91,12 @@ def run_one(root: Path, scene: str, frame: str, tmp: Path) -> dict:
         "steps": int(s["steps"]),
         "step_wall_median": float(s["step_wall_median"]),
         "cpu_per_step": float(s["cpu_seconds"]) / steps,
+        "setup_seconds": float(s["setup_seconds"]),
     }
 
 
-def run_all(checkouts: dict[str, Path], repeat: int, out: Path) -> None:
+def run_all(checkouts: dict[str, Path], repeat: int, out: Path, cases: list) -> None:
     """Alternate the checkouts run by run; write every sample to ``out`` (JSON)."""
-    cases = scenes(checkouts)
     result: dict[str, dict[str, list[dict]]] = {f"{s}/{f}": {} for s, f in cases}
     with tempfile.TemporaryDirectory() as tmp:
         for _ in range(repeat):
@@ -99,6 +115,7 @@ def table(path: Path) -> str:
     head = ["scene / frame", "steps"]
     for label in labels:
         head += [f"{label}: ms per step (median)", f"{label}: CPU ms per step"]
+        head += [f"{label}: set-up s"]
     head += [f"{labels[-1]} / {labels[0]} (CPU)"]
     rows = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for case, runs in data.items():
@@ -107,11 +124,13 @@ def table(path: Path) -> str:
         for label in labels:
             ok = [r for r in runs[label] if r["status"] == "ok"]
             if not ok:
-                cells += [runs[label][0]["status"], ""]
+                cells += [runs[label][0]["status"], "", ""]
                 continue
             wall = statistics.median(r["step_wall_median"] for r in ok)
             med[label] = statistics.median(r["cpu_per_step"] for r in ok)
             cells += [f"{1e3 * wall:.3g}", f"{1e3 * med[label]:.3g}"]
+            setup = [r["setup_seconds"] for r in ok if "setup_seconds" in r]
+            cells.append(f"{statistics.median(setup):.2f}" if setup else "")
         ratio = med[labels[-1]] / med[labels[0]] if len(med) == len(labels) else float("nan")
         cells.append(f"{ratio:.2f}")
         rows.append("| " + " | ".join(cells) + " |")
@@ -130,6 +149,8 @@ def main() -> int:
         help="a label and a folder holding a pfem2x package (give two or more)",
     )
     r.add_argument("--repeat", type=int, default=3)
+    r.add_argument("--scene", action="append", metavar="NAME[:VARIANT]", help="only these")
+    r.add_argument("--frame", action="append", choices=sorted({*FRAMES["transport"]}))
     r.add_argument("--out", type=Path, required=True)
     t = sub.add_parser("table")
     t.add_argument("json", type=Path)
@@ -145,7 +166,12 @@ def main() -> int:
             print(f"error: --checkout {item}: expected LABEL=DIR with DIR/pfem2x", file=sys.stderr)
             return 2
         checkouts[label] = root
-    run_all(checkouts, args.repeat, args.out)
+    try:
+        cases = scenes(checkouts, args.scene, args.frame)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    run_all(checkouts, args.repeat, args.out, cases)
     return 0
 
 

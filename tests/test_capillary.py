@@ -19,6 +19,7 @@ from pfem2x.physics.flow.capillary import (
     smooth_along,
 )
 from pfem2x.physics.flow.curvature import (
+    _pairs_within,
     circle_distance,
     circle_misfit,
     closest_pairs,
@@ -557,6 +558,19 @@ def test_closest_pairs_within_as_all_pairs():
     # points with no segment within the radius: no pair
     far = closest_pairs_within(np.array([[0.02, 0.02]]), segs, 0.05, 1e-12)
     assert len(far[0]) == 0
+
+
+@pytest.mark.parametrize("radius", [0.01, 0.08, 0.6])
+def test_pairs_within_are_all_pairs_within(radius):
+    """The bucketed (centre, point) pairs: exactly those of all pairs closer than the radius."""
+    rng = np.random.default_rng(5)
+    centres = rng.uniform([0.2, 0.1], [0.8, 1.9], (150, 2))
+    points = np.concatenate([rng.uniform([0.0, 0.0], [1.0, 2.0], (4000, 2)), centres[:5]])
+    ci, pi = _pairs_within(centres, points, radius)
+    d2 = ((points[None, :, :] - centres[:, None, :]) ** 2).sum(axis=2)
+    want = set(zip(*np.nonzero(d2 < radius * radius), strict=True))
+    assert len(want) > 5
+    assert len(ci) == len(want) and set(zip(ci.tolist(), pi.tolist(), strict=True)) == want
 
 
 def damping_energy(s, field):

@@ -75,3 +75,28 @@ def test_closest_points_on_segments():
     pts = np.array([[0.5, -2.0], [2.0, 0.5], [0.2, 0.1], [3.0, 3.0]])
     want = np.array([[0.5, 0.0], [1.0, 0.5], [0.2, 0.0], [1.0, 1.0]])
     assert np.allclose(closest_points(pts, segs), want, atol=1e-15)
+
+
+def test_closest_points_as_all_pairs():
+    """The bucketed search: the closest point of all pairs, to the last bit, ties included.
+
+    A wavy polyline of 2000 segments (shared end points: two equidistant segments,
+    the lower index wins) and points near it, on it and far from it.
+    """
+    rng = np.random.default_rng(11)
+    t = np.linspace(-0.5, 0.5, 2001)
+    line = np.c_[t, 0.1 * np.cos(2 * np.pi * t) + 0.02 * np.sin(40 * t)]
+    segs = np.stack([line[:-1], line[1:]], axis=1)
+    pts = np.concatenate(
+        [rng.uniform([-0.6, -0.4], [0.6, 0.4], (3000, 2)), line[::5], line[::7] + [0.0, 1e-3]]
+    )
+    a, ab = segs[None, :, 0, :], segs[None, :, 1, :] - segs[None, :, 0, :]
+    ab2 = np.maximum(ab[..., 0] * ab[..., 0] + ab[..., 1] * ab[..., 1], 1e-300)
+    ap = pts[:, None, :] - a
+    s = np.clip((ap[..., 0] * ab[..., 0] + ap[..., 1] * ab[..., 1]) / ab2, 0.0, 1.0)
+    c = a + s[..., None] * ab
+    d = pts[:, None, :] - c
+    k = np.argmin(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1], axis=1)
+    want = c[np.arange(len(pts)), k]
+    assert np.array_equal(closest_points(pts, segs), want)
+    assert np.isnan(closest_points(pts[:2], segs[:0])).all()
