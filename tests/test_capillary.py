@@ -542,21 +542,36 @@ def test_particle_redistance_keeps_the_distance_fit(tmp_path, redistance):
         assert m["curvature_fallback_mean"] > 0.5
 
 
-def test_closest_pairs_within_as_all_pairs():
-    """The bucketed closest segments: those of all pairs, for points near the segments."""
+def _all_closest_pairs(points, segs, tol):
+    """Every (point, segment) pair measured (numpy): those within tol of the closest."""
+    a = segs[None, :, 0, :]
+    ab = segs[None, :, 1, :] - a
+    ab2 = np.maximum(np.einsum("nmj,nmj->nm", ab, ab), 1e-300)
+    ap = points[:, None, :] - a
+    t = np.clip(np.einsum("nmj,nmj->nm", ap, ab) / ab2, 0.0, 1.0)
+    d = ap - t[:, :, None] * ab
+    dist = np.sqrt(np.einsum("nmj,nmj->nm", d, d))
+    return np.nonzero(dist <= dist.min(axis=1)[:, None] + tol)
+
+
+@pytest.mark.parametrize("tol", [1e-12, 1e-3])
+def test_closest_pairs_as_all_pairs(tol):
+    """The bucketed closest segments: those of all pairs, ties and far points included."""
     rng = np.random.default_rng(3)
-    th = np.linspace(0.0, 2.0 * np.pi, 41)
+    th = np.linspace(0.0, 2.0 * np.pi, 161)
     ring = np.stack([0.5 + 0.25 * np.cos(th), 0.5 + 0.25 * np.sin(th)], axis=1)
     segs = np.stack([ring[:-1], ring[1:]], axis=1)
-    pts = rng.uniform(0.0, 1.0, (3000, 2))
-    pts = np.concatenate([pts, ring])  # end points: two equidistant segments each
+    pts = np.concatenate([rng.uniform(0.0, 1.0, (3000, 2)), ring, [[0.5, 0.5]]])
     near = np.abs(np.hypot(pts[:, 0] - 0.5, pts[:, 1] - 0.5) - 0.25) < 0.1
-    a = closest_pairs(pts[near], segs, 1e-12)
-    b = closest_pairs_within(pts[near], segs, 0.15, 1e-12)
-    assert len(a[0]) > len(pts[near])  # ties
-    assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
-    # points with no segment within the radius: no pair
-    far = closest_pairs_within(np.array([[0.02, 0.02]]), segs, 0.05, 1e-12)
+    want = _all_closest_pairs(pts, segs, tol)
+    assert len(want[0]) > len(pts)  # ties: the ring's end points, its centre
+    for got in (closest_pairs(pts, segs, tol), closest_pairs_within(pts, segs, 0.8, tol)):
+        assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+    # within a radius: the same pairs for points near the segments, none without one
+    got = closest_pairs_within(pts[near], segs, 0.15, tol)
+    want = _all_closest_pairs(pts[near], segs, tol)
+    assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+    far = closest_pairs_within(np.array([[0.02, 0.02]]), segs, 0.05, tol)
     assert len(far[0]) == 0
 
 

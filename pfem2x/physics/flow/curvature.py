@@ -446,31 +446,27 @@ def closest_segment(points: np.ndarray, segs: np.ndarray, chunk: int = 2_000_000
 
 
 def closest_pairs(
-    points: np.ndarray, segs: np.ndarray, tol: float, chunk: int = 2_000_000
+    points: np.ndarray, segs: np.ndarray, tol: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Pairs ``(point, segment)`` whose distance is within ``tol`` of the point's closest one.
 
     A point equidistant from two segments (their shared end point is its closest point,
     or a symmetry) is paired with both, not with the one a round-off difference picks
-    (which differs between partitions).
+    (which differs between partitions). Sorted by point, then segment.
+
+    The pairs of all points and segments, found without measuring them all: every
+    segment within ``tol`` of a point's closest one (at most :math:`d_{max}` + ``tol``
+    away, :math:`d_{max}` the largest distance of a point to its closest segment,
+    :func:`~pfem2x.physics.flow.interface.segment_distance`) has its midpoint within
+    :math:`d_{max}` + ``tol`` + half the longest segment of the point
+    (:func:`closest_pairs_within` with that radius).
     """
-    n, m = len(points), len(segs)
-    a = segs[:, 0]
-    ab = segs[:, 1] - a
-    ab2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
-    pi, si = [], []
-    step = max(1, chunk // max(m, 1))
-    for k in range(0, n, step):
-        ap = points[k : k + step, None, :] - a[None, :, :]
-        t = np.clip(np.einsum("nmj,mj->nm", ap, ab) / ab2, 0.0, 1.0)
-        d = ap - t[:, :, None] * ab[None, :, :]
-        dist = np.sqrt(np.einsum("nmj,nmj->nm", d, d))
-        p, q = np.nonzero(dist <= dist.min(axis=1)[:, None] + tol)
-        pi.append(p + k)
-        si.append(q)
-    return np.concatenate(pi or [np.zeros(0, np.int64)]), np.concatenate(
-        si or [np.zeros(0, np.int64)]
-    )
+    if len(points) == 0 or len(segs) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    dmax = float(segment_distance(points, segs).max())
+    half = 0.5 * float(np.sqrt(((segs[:, 1] - segs[:, 0]) ** 2).sum(axis=1)).max())
+    radius = (dmax + tol + half) * (1.0 + 1e-9) + 1e-300
+    return closest_pairs_within(points, segs, radius, tol)
 
 
 def closest_pairs_within(
