@@ -454,12 +454,12 @@ def closest_pairs(
     or a symmetry) is paired with both, not with the one a round-off difference picks
     (which differs between partitions). Sorted by point, then segment.
 
-    The pairs of all points and segments, found without measuring them all: every
-    segment within ``tol`` of a point's closest one (at most :math:`d_{max}` + ``tol``
-    away, :math:`d_{max}` the largest distance of a point to its closest segment,
-    :func:`~pfem2x.physics.flow.interface.segment_distance`) has its midpoint within
-    :math:`d_{max}` + ``tol`` + half the longest segment of the point
-    (:func:`closest_pairs_within` with that radius).
+    The pairs of all points and segments, found without measuring them all: a segment
+    within ``tol`` of a point's closest one is at most :math:`d_{max}` + ``tol`` from the
+    point (:math:`d_{max}` the largest distance of any point to its closest segment,
+    :func:`~pfem2x.physics.flow.interface.segment_distance`), so its midpoint is within
+    :math:`d_{max}` + ``tol`` + half the longest segment (:func:`closest_pairs_within`
+    with that radius).
     """
     if len(points) == 0 or len(segs) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
