@@ -422,6 +422,7 @@ def closest_pairs_within_kernel(points, segs, radius, tol):  # pragma: no cover 
         lst[fill[key[j]]] = j
         fill[key[j]] += 1
     r2 = radius * radius
+    ax, ay, bx, by, ab2 = _segment_arrays(segs)
     cand = np.empty(m, dtype=np.int64)
     dist = np.empty(m)
     out_p = np.empty(0, dtype=np.int64)
@@ -446,19 +447,12 @@ def closest_pairs_within_kernel(points, segs, radius, tol):  # pragma: no cover 
                     ey = my[sg] - py
                     if not ex * ex + ey * ey < r2:
                         continue
-                    ax = segs[sg, 0, 0]
-                    ay = segs[sg, 0, 1]
-                    bx = segs[sg, 1, 0] - ax
-                    by = segs[sg, 1, 1] - ay
-                    ab2 = bx * bx + by * by
-                    if ab2 < 1e-300:
-                        ab2 = 1e-300
-                    apx = px - ax
-                    apy = py - ay
-                    t = (apx * bx + apy * by) / ab2
+                    apx = px - ax[sg]
+                    apy = py - ay[sg]
+                    t = (apx * bx[sg] + apy * by[sg]) / ab2[sg]
                     t = min(max(t, 0.0), 1.0)
-                    dx = apx - t * bx
-                    dy = apy - t * by
+                    dx = apx - t * bx[sg]
+                    dy = apy - t * by[sg]
                     dd = np.sqrt(dx * dx + dy * dy)
                     cand[nc] = sg
                     dist[nc] = dd
