@@ -31,7 +31,6 @@ __all__ = [
     "closest_mean",
     "closest_pairs",
     "closest_pairs_within",
-    "closest_segment",
     "distance_curvature",
     "oriented_segments",
     "refined_segments",
@@ -427,22 +426,6 @@ def region_distance(
     # sign of a round-off distance (the polygon's points differ by round-off between partitions)
     d = segment_distance(points, allfine, cap=itf.clip)
     return sign * np.clip(d, 1e-12 * itf.clip, itf.clip)
-
-
-def closest_segment(points: np.ndarray, segs: np.ndarray, chunk: int = 2_000_000) -> np.ndarray:
-    """Index of the segment ``(m, 2, 2)`` closest to each point ``(n, 2)``."""
-    n, m = len(points), len(segs)
-    a = segs[:, 0]
-    ab = segs[:, 1] - a
-    ab2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
-    out = np.zeros(n, dtype=np.int64)
-    step = max(1, chunk // max(m, 1))
-    for k in range(0, n, step):
-        ap = points[k : k + step, None, :] - a[None, :, :]
-        s = np.clip(np.einsum("nmj,mj->nm", ap, ab) / ab2, 0.0, 1.0)
-        d = ap - s[:, :, None] * ab[None, :, :]
-        out[k : k + step] = np.argmin(np.einsum("nmj,nmj->nm", d, d), axis=1)
-    return out
 
 
 def closest_pairs(
