@@ -14,6 +14,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from pfem2x.particles._kernels import counting_sort
+
 __all__ = [
     "circle_distance_kernel",
     "circle_fit_equations",
@@ -308,18 +310,8 @@ def pairs_within_kernel(centres, points, radius):  # pragma: no cover - compiled
         m0 = max(m0, cb0[i])
         m1 = max(m1, cb1[i])
     ny = m1 + 3
-    nkey = (m0 + 3) * ny
-    ptr = np.zeros(nkey + 1, dtype=np.int64)
-    for i in range(npt):
-        ptr[(pb0[i] + 1) * ny + pb1[i] + 2] += 1
-    for k in range(nkey):
-        ptr[k + 1] += ptr[k]
-    fill = ptr[:-1].copy()
-    order = np.empty(npt, dtype=np.int64)
-    for i in range(npt):  # stable: a bucket's points in index order
-        key = (pb0[i] + 1) * ny + pb1[i] + 1
-        order[fill[key]] = i
-        fill[key] += 1
+    # stable: a bucket's points in index order
+    order, ptr = counting_sort((pb0 + 1) * ny + pb1 + 1, (m0 + 3) * ny)
     total = 0
     for dx in range(-1, 2):
         for dy in range(-1, 2):
@@ -409,18 +401,10 @@ def closest_pairs_within_kernel(points, segs, radius, tol):  # pragma: no cover 
         hi1 = max(hi1, my[j])
     nbx = int(np.floor((hi0 - lo0) / radius)) + 1
     nby = int(np.floor((hi1 - lo1) / radius)) + 1
-    ptr = np.zeros(nbx * nby + 1, dtype=np.int64)
     key = np.empty(m, dtype=np.int64)
     for j in range(m):
         key[j] = int(np.floor((mx[j] - lo0) / radius)) * nby + int(np.floor((my[j] - lo1) / radius))
-        ptr[key[j] + 1] += 1
-    for k in range(nbx * nby):
-        ptr[k + 1] += ptr[k]
-    fill = ptr[:-1].copy()
-    lst = np.empty(m, dtype=np.int64)
-    for j in range(m):
-        lst[fill[key[j]]] = j
-        fill[key[j]] += 1
+    lst, ptr = counting_sort(key, nbx * nby)
     r2 = radius * radius
     ax, ay, bx, by, ab2 = _segment_arrays(segs)
     cand = np.empty(m, dtype=np.int64)
