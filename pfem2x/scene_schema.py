@@ -464,6 +464,16 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "not damped)",
         ),
         "rtol": Key(number(0.0, 1.0, lo_open=True), 1e-8, doc="linear solver tolerance"),
+        "divergence_rtol": Key(
+            number(0.0, 1.0),
+            0.0,
+            doc="pressure step: 0 = the approximate projection (the Laplacian's increment: "
+            "the corrected velocity is weakly divergence-free only approximately, least at a "
+            "density jump); > 0 = the discrete projection, what is left removed with the "
+            "correction's own Schur complement to this relative tolerance (GMRES, the "
+            "Laplacian's AMG as preconditioner, at most 30 iterations; closed boxes, "
+            "correction = velocity)",
+        ),
         "quadrature_degree": Key(integer(1, 20), 4, doc="quadrature degree of the flow forms"),
     },
 }
@@ -529,6 +539,7 @@ FLOW_COMMON_KEYS = (
     "flow.walls",
     *(f"flow.{s}" for s in FLOW_SIDES),
     *(f"flow.{k}" for k in ("max_speed", "pressure_step", "correction", "rtol")),
+    "flow.divergence_rtol",
     "flow.surface_tension",
     "flow.capillary_increment",
     "flow.capillary_damping",

@@ -222,6 +222,7 @@ class FlowSection(Section):
     capillary_increment: bool
     capillary_damping: str
     rtol: float
+    divergence_rtol: float
     quadrature_degree: int
 
     def side(self, name: str) -> str:

@@ -145,13 +145,20 @@ class Solver:
 
         The keys are those ``summary.json`` reports: ``particles``, ``assembly``,
         ``solve`` (and ``reinit`` for the level set's re-distancing; ``diagnostics``
-        and ``output`` for the runner's diagnostics and writers).
+        and ``output`` for the runner's diagnostics and writers). A block inside
+        another counts for its own key only: the outer one's time excludes it.
         """
+        stack = self.__dict__.setdefault("_timer_inner", [])
+        stack.append(0.0)  # the time of the blocks nested in this one
         t0 = time.perf_counter()
         try:
             yield
         finally:
-            self.timings[key] = self.timings.get(key, 0.0) + (time.perf_counter() - t0)
+            total = time.perf_counter() - t0
+            inner = stack.pop()
+            self.timings[key] = self.timings.get(key, 0.0) + (total - inner)
+            if stack:
+                stack[-1] += total
 
     def energy_scale(self) -> float:
         """A reference kinetic energy for the runner's energy guard (0: none)."""

@@ -146,7 +146,7 @@ class EulerianFlow(FlowSolver):
                 pr.correction, pr.incremental, scene.method.preconditioner, pr.rtol,
                 self.timer,
                 force_in_projection=(self.jump is not None or self.capillary is not None)
-                and not pr.incremental,
+                and not pr.incremental, divergence_rtol=pr.divergence_rtol,
             )
         )  # fmt: skip
         if self.projection.force_in_projection:

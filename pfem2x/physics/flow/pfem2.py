@@ -346,7 +346,7 @@ class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers,
                 self.dt_c, self._bcs_u, self._bcs_p, pr.correction, pr.incremental,
                 self.scene.method.preconditioner, pr.rtol, self.timer,
                 force_in_projection=(self.jump is not None or self.capillary is not None)
-                and not pr.incremental,
+                and not pr.incremental, divergence_rtol=pr.divergence_rtol,
             )
         )  # fmt: skip
         v, w = ufl.TrialFunction(self.V), ufl.TestFunction(self.V)

@@ -110,6 +110,8 @@ class FlowProblem:
         self.reinit_every = int(fl.reinit_every)
         self.volume_correction = bool(fl.volume_correction)
         self.rtol = float(fl.rtol)
+        #: flow.divergence_rtol: > 0, the discrete projection (:mod:`.projection`)
+        self.divergence_rtol = float(fl.divergence_rtol)
         self.correction = str(fl.correction)
         self.incremental = fl.pressure_step == "increment"
         self.quadrature_degree = int(fl.quadrature_degree)
@@ -162,6 +164,11 @@ class FlowSolver(Solver):
                 f"the file's mesh is {domain.gdim}D"
             )
         self.problem = pr = FlowProblem(scene, domain.gdim)
+        if pr.divergence_rtol > 0.0 and (pr.outflow or pr.correction != "velocity"):
+            raise SceneError(
+                "flow.divergence_rtol: the discrete projection needs closed walls (no outflow "
+                'side) and flow.correction = "velocity"'
+            )
         mesh = domain.mesh
         self.gdim = gdim = domain.gdim
         self.Q = compat.function_space(mesh, 1)
@@ -332,6 +339,8 @@ class FlowSolver(Solver):
             d["curvature_fallback"] = cap.fallback_segments / max(cap.segment_count, 1)
         if self.exact is not None:
             d.update(self.exact.diagnostics(u, self.p.x.array, t))
+        if self.problem.divergence_rtol > 0.0:  # the last step's discrete projection
+            d["divergence_iterations"] = float(self.projection.iterations.get("discrete", 0))
         d.update(self.case.diagnostics(self, t))
         return d
 
