@@ -33,11 +33,11 @@ mesh scale: at a density jump, where the particles then gather in the cut cells.
 correction, closed boxes) removes what is left: after the correction,
 :math:`S q = -\Delta t^{-1} D u`, :math:`u \mathrel{-}= \Delta t\,P M^{-1} G q`,
 :math:`p \mathrel{+}= q`, by GMRES from 0, right-preconditioned by the Laplacian's
-AMG, to that relative tolerance or at most 30 iterations (the P1 pair's mesh-scale
-pressure modes are out of :math:`S`'s range: on a smooth flow the residual stalls at
-a few per cent, and GMRES keeps its best iterate). A balanced state (no weak
-divergence) is left as it is. One more sparse product (:math:`S`, with the Laplacian)
-and one GMRES solve per pressure step (docs/RESULTS.md, "Where the water particles'
+AMG (the pressure solve's own set-up), to that relative tolerance or at most 30
+iterations (the P1 pair's mesh-scale pressure modes are out of :math:`S`'s range: on a
+smooth flow the residual stalls at a few per cent, and GMRES keeps its best iterate). A
+balanced state (no weak divergence) is left as it is. One more matrix (:math:`G`, with
+the Laplacian) and one GMRES solve per pressure step (docs/RESULTS.md, "Where the water particles'
 volume goes").
 """
 
@@ -173,7 +173,7 @@ class PressureProjection:
         else:
             self.p_solver.set_operator(self.A_p)
         if self._discrete is not None:
-            self._discrete.assemble(self.A_p, self.nullspace)
+            self._discrete.assemble(self.A_p, self.nullspace, self.p_solver)
 
     def solve(self, L: Any, x: Any) -> None:
         """Solve the pressure operator against the right-hand side form ``L`` into ``x``."""
@@ -226,10 +226,12 @@ class PressureProjection:
 class _DiscreteProjection:
     """The operators of the discrete projection (``flow.divergence_rtol`` > 0).
 
-    :math:`D` (assembled once), :math:`G` (with the density, re-assembled with the
-    Laplacian), the lumped mass's inverse with the velocity's condition rows zeroed,
-    the Schur complement :math:`S = -DPM^{-1}G` (a sparse product) and its GMRES
-    solver with the Laplacian's AMG as the right preconditioner.
+    :math:`D` (assembled once), :math:`PM^{-1}G` (with the density, re-assembled with
+    the Laplacian; :math:`M^{-1}` the lumped mass's inverse with the velocity's
+    condition rows zeroed), the Schur complement :math:`S = -DPM^{-1}G` applied as
+    the two products (no matrix of it) and its GMRES solver, right-preconditioned by
+    the pressure solver's own AMG (set up for the Laplacian of the same density by
+    the pass's pressure solve: no second set-up).
     """
 
     #: GMRES iterations at most (one restart cycle)
@@ -243,7 +245,6 @@ class _DiscreteProjection:
         self.D = fem.assemble_matrix(compat.form(ufl.div(v) * r * dxq), [])
         self.a_G = compat.form(ufl.dot(ufl.grad(q), w) / rho * dxq)
         self.G: Any = None
-        self.S: Any = None
         self.minv = compat.create_vector(proj.L_mass)
         fixed = compat.dirichlet_rows(self.minv, proj.bcs_u)
         self.minv.array[:] = np.where(fixed, 0.0, 1.0 / proj.b_lumped.array_r)
@@ -251,26 +252,31 @@ class _DiscreteProjection:
         self.q = self.rhs.duplicate()
         self.du = compat.create_vector(proj.L_mass)
         self.rtol = proj.divergence_rtol
-        self.preconditioner = proj.preconditioner
-        self.solver: fem.LinearSolver | None = None
+        self.ksp: Any = None
+        self.S: Any = None
 
-    def assemble(self, A_p: Any, nullspace: Any) -> None:
-        """``S`` of the current density; the solver's operators ``(S, A_p)``."""
+    def assemble(self, A_p: Any, nullspace: Any, p_solver: fem.LinearSolver) -> None:
+        """:math:`PM^{-1}G` of the current density; the solver on first use (collective)."""
         self.G = fem.assemble_matrix(self.a_G, [], self.G)
         self.G.diagonalScale(L=self.minv)  # P M^-1 G
-        if self.S is None:
-            self.S = self.D.matMult(self.G)
-        else:
-            self.D.matMult(self.G, result=self.S)
-        self.S.scale(-1.0)
+        if self.ksp is not None:
+            return
+        sizes = (self.rhs.getSizes(), self.rhs.getSizes())
+        self.S = PETSc.Mat().createPython(sizes, _SchurProduct(self), comm=A_p.getComm())
+        self.S.setUp()
         if nullspace is not None:
             self.S.setNullSpace(nullspace)
-        if self.solver is None:
-            pre = compat.preconditioner(self.preconditioner)
-            self.solver = fem.LinearSolver(self.S, "gmres", pre, rtol=self.rtol)
-            self.solver.ksp.setPCSide(PETSc.PC.Side.RIGHT)
-            self.solver.ksp.setTolerances(rtol=self.rtol, atol=1e-50, max_it=self.MAX_IT)
-        self.solver.ksp.setOperators(self.S, A_p)
+        ksp = PETSc.KSP().create(A_p.getComm())
+        ksp.setOperators(self.S)
+        ksp.setType("gmres")
+        ksp.setGMRESRestart(self.MAX_IT)
+        ksp.setTolerances(rtol=self.rtol, atol=1e-50, max_it=self.MAX_IT)
+        ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
+        ksp.setPCSide(PETSc.PC.Side.RIGHT)
+        pc = ksp.getPC()
+        pc.setType(PETSc.PC.Type.PYTHON)
+        pc.setPythonContext(_SharedPC(p_solver.ksp.getPC()))
+        self.ksp = ksp
 
     def polish(self, u: Any, p: Any, dt: float, nullspace: Any) -> int:
         """``u -= dt P M^-1 G q``, ``p += q``: ``S q = -D u / dt`` (collective); GMRES iterations.
@@ -302,10 +308,32 @@ class _DiscreteProjection:
         with the smallest residual it found, which is what the correction uses.
         Raises on a non-finite residual.
         """
-        ksp = self.solver.ksp
+        ksp = self.ksp
         fem.COUNTERS["solves"] += 1
         ksp.solve(b, x)
         reason = ksp.getConvergedReason()
         if reason < 0 and reason not in self.STALLED:
             raise FloatingPointError(f"linear solver diverged (PETSc reason {reason})")
         return int(ksp.getIterationNumber())
+
+
+class _SchurProduct:
+    """``y = -D (P M^-1 G x)``: the Schur complement's action (a PETSc python matrix)."""
+
+    def __init__(self, ops: _DiscreteProjection):
+        self.ops = ops
+
+    def mult(self, mat: Any, x: Any, y: Any) -> None:
+        self.ops.G.mult(x, self.ops.du)
+        self.ops.D.mult(self.ops.du, y)
+        y.scale(-1.0)
+
+
+class _SharedPC:
+    """A preconditioner that applies another, already set-up one (a PETSc python PC)."""
+
+    def __init__(self, pc: Any):
+        self.pc = pc
+
+    def apply(self, pc: Any, x: Any, y: Any) -> None:
+        self.pc.apply(x, y)
