@@ -113,7 +113,6 @@ class PressureProjection:
         self.divergence_rtol = float(divergence_rtol)
         if self.divergence_rtol > 0.0 and (bcs_p or correction != "velocity"):
             raise ValueError("the discrete projection needs a closed box and correction = velocity")
-        self.dt_c = dt_c
         self._discrete: _DiscreteProjection | None = None
         self.correction = correction
         self.incremental = incremental
