@@ -1,12 +1,14 @@
 """Runner behaviour: effects select operators, divergence guard, parallel summaries."""
 
 import json
+import time
 
 import numpy as np
 import pytest
 
 from pfem2x import fem
 from pfem2x.compat import MPI
+from pfem2x.physics.base import Solver
 from pfem2x.runner import Simulation, build_domain, make_solver
 from pfem2x.scene import validate
 
@@ -110,3 +112,21 @@ def test_every_rank_finds_the_summary_when_run_returns(shared_tmp):
         res = Simulation(scene(), shared_tmp / f"s{i}", quiet=True).run()
         saved = json.loads((shared_tmp / f"s{i}" / "summary.json").read_text())
         assert saved["steps"] == res.summary["steps"]
+
+
+def test_nested_timer_blocks_count_once():
+    """A ``timer`` block inside another counts for its own key only (the outer excludes it)."""
+    class Timed:
+        timings: dict = {}
+
+    t = Timed()
+    t.timings = {}
+    t0 = time.perf_counter()
+    with Solver.timer(t, "assembly"):
+        time.sleep(0.01)
+        with Solver.timer(t, "solve"):
+            time.sleep(0.1)
+    total = time.perf_counter() - t0
+    assert t.timings["solve"] >= 0.1
+    assert t.timings["assembly"] < t.timings["solve"]
+    assert t.timings["assembly"] + t.timings["solve"] <= total
