@@ -116,6 +116,7 @@ def test_every_rank_finds_the_summary_when_run_returns(shared_tmp):
 
 def test_nested_timer_blocks_count_once():
     """A ``timer`` block inside another counts for its own key only (the outer excludes it)."""
+
     class Timed:
         timings: dict = {}
 
