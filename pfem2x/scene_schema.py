@@ -373,6 +373,14 @@ SCHEMA: dict[str, dict[str, Key]] = {
             0.0,
             doc="PFEM-2, two phases: pic_fraction of the light phase (no region, e.g. air)",
         ),
+        "new_particle_velocity": Key(
+            choice("fit", "mesh"),
+            "fit",
+            doc="PFEM-2, population control: a new particle's velocity from a least-squares "
+            "fit of its cell's particles, used up to 6 Mahalanobis radii from them (fit), or "
+            "the mesh velocity at its position plus the mean deviation of its cell's "
+            "particles from the mesh velocity (mesh: bounded by construction, no limit)",
+        ),
         "light_source": Key(
             choice("full", "gravity"),
             "full",
@@ -586,6 +594,7 @@ FRAME_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
             "method.preconditioner",
             "flow.pic_fraction",
             "flow.pic_fraction_light",
+            "flow.new_particle_velocity",
             "flow.light_source",
             "flow.mass_weighted",
             "flow.affine",

@@ -209,6 +209,7 @@ class FlowSection(Section):
     viscous_step: str
     pic_fraction: float
     pic_fraction_light: float
+    new_particle_velocity: str
     light_source: str
     mass_weighted: bool
     affine: bool

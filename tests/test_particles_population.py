@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from pfem2x.compat import MPI
+from pfem2x import compat
+from pfem2x.compat import MPI, dolfinx
 from pfem2x.mesh import build_mesh
 from pfem2x.particles import Cloud, rebalance, seed_cells
 
@@ -66,6 +67,17 @@ def test_empty_cell_filled_from_neighbours(comm):
     assert fit or st.from_idw + st.unfilled > 0
 
 
+def _collinear_cloud(d):
+    """Three nearly collinear particles with values 0, 1, 0 on the one-cell-square mesh ``d``."""
+    cl = Cloud(d, {"T": ()})
+    if d.mesh.topology.index_map(2).size_local:
+        x = np.array([[0.2, 0.1], [0.5, 0.101], [0.8, 0.1]])
+        c = cl.pmesh.locate_owned_bbtree(x)
+        own = c >= 0
+        cl.append(x[own], c[own], {"T": np.array([0.0, 1.0, 0.0])[own]})
+    return cl
+
+
 def test_new_values_stay_near_their_samples(comm):
     """Three nearly collinear particles with noisy values: no wild extrapolation.
 
@@ -76,12 +88,7 @@ def test_new_values_stay_near_their_samples(comm):
     the samples on either side.
     """
     d = build_mesh(comm, "rectangle", [[0.0, 0.0], [1.0, 1.0]], [1, 1])
-    cl = Cloud(d, {"T": ()})
-    if d.mesh.topology.index_map(2).size_local:
-        x = np.array([[0.2, 0.1], [0.5, 0.101], [0.8, 0.1]])
-        c = cl.pmesh.locate_owned_bbtree(x)
-        own = c >= 0
-        cl.append(x[own], c[own], {"T": np.array([0.0, 1.0, 0.0])[own]})
+    cl = _collinear_cloud(d)
     n0 = cl.global_count()
     assert n0 == 3
     st = rebalance(cl, 4, 0, seed=1)
@@ -90,6 +97,50 @@ def test_new_values_stay_near_their_samples(comm):
     lo = comm.allreduce(t.min() if cl.n else np.inf, op=MPI.MIN)
     hi = comm.allreduce(t.max() if cl.n else -np.inf, op=MPI.MAX)
     assert -1.0 - 1e-12 <= lo and hi <= 2.0 + 1e-12, (lo, hi)
+
+
+@pytest.mark.mpi
+def test_deviation_values_are_mesh_plus_cell_mean(comm):
+    """``deviation``: a new particle gets f(x) + its cell's mean particle deviation from f.
+
+    With one deviation per cell the new values are exact (f + that deviation); with
+    noisy deviations they stay within the range of the deviations; the three nearly
+    collinear particles of the test above give values within their own range.
+    """
+    d = build_mesh(comm, "rectangle", [[0.0, 0.0], [1.0, 1.0]], [6, 6])
+    V = compat.function_space(d.mesh, 1)
+    f = dolfinx.fem.Function(V)
+    f.interpolate(lambda x: 0.3 - 1.2 * x[0] + 2.5 * x[1])
+    cl = Cloud(d, {"T": ()})
+    seed_cells(cl, 2, seed=3)
+    cell_dev = 0.05 * (cl.cells % 7)
+    cl["T"] = _lin(cl.x) + cell_dev
+    st = rebalance(cl, 5, 0, seed=2, deviation={"T": f})
+    assert comm.allreduce(st.added, op=MPI.SUM) > 0
+    err = np.abs(cl["T"] - _lin(cl.x) - 0.05 * (cl.cells % 7)).max(initial=0.0)
+    assert comm.allreduce(err, op=MPI.MAX) < 1e-12
+    # noisy deviations: new values within the deviations' range
+    cl = Cloud(d, {"T": ()})
+    seed_cells(cl, 2, seed=4)
+    dev = np.random.default_rng(comm.rank).uniform(-0.5, 0.5, cl.n)
+    cl["T"] = _lin(cl.x) + dev
+    rebalance(cl, 5, 0, seed=2, deviation={"T": f})
+    r = cl["T"] - _lin(cl.x)
+    lo = comm.allreduce(r.min(initial=np.inf), op=MPI.MIN)
+    hi = comm.allreduce(r.max(initial=-np.inf), op=MPI.MAX)
+    assert -0.5 - 1e-12 <= lo and hi <= 0.5 + 1e-12, (lo, hi)
+
+
+def test_deviation_bounds_collinear_samples(comm):
+    """The collinear samples (0, 1, 0) about f = 0: new values within [0, 1]."""
+    d = build_mesh(comm, "rectangle", [[0.0, 0.0], [1.0, 1.0]], [1, 1])
+    f = dolfinx.fem.Function(compat.function_space(d.mesh, 1))
+    cl = _collinear_cloud(d)
+    rebalance(cl, 4, 0, seed=1, deviation={"T": f})
+    t = cl["T"]
+    lo = comm.allreduce(t.min(initial=np.inf), op=MPI.MIN)
+    hi = comm.allreduce(t.max(initial=-np.inf), op=MPI.MAX)
+    assert 0.0 <= lo and hi <= 1.0, (lo, hi)
 
 
 def test_replace_sorted_is_remove_append_sort():

@@ -13,7 +13,11 @@
   otherwise get an extrapolated value far outside anything near it), else
   their inverse-distance average; only when no particle is near does a mesh
   field (``fallback``) give the value (eq. 4.14), and without one the new
-  particle gets 0 (counted as ``unfilled``).
+  particle gets 0 (counted as ``unfilled``). Fields given as ``deviation``
+  instead take a mesh field's value at the new position plus the mean
+  deviation of the cell's particles from that field: within the range of the
+  field's nodal values plus the deviations, exact for the field itself, and
+  no limit to tune.
 """
 
 from __future__ import annotations
@@ -58,6 +62,7 @@ def rebalance(
     fallback: Mapping[str, Any] | None = None,
     cells: np.ndarray | None = None,
     candidates: int = 8,
+    deviation: Mapping[str, Any] | None = None,
 ) -> PopulationStats:
     """Add / remove particles so each owned cell has ``nmin <= count <= nmax``.
 
@@ -76,6 +81,11 @@ def rebalance(
         Optional bool mask over owned cells: only these are touched.
     candidates:
         Random candidate positions tried per new particle.
+    deviation:
+        ``{field: P1 Function}``: new particles of these fields get the
+        function's value at their position plus the mean of ``value -
+        function`` over the particles of their cell before the control (a
+        cell without particles: the function's value).
 
     Returns
     -------
@@ -111,6 +121,9 @@ def rebalance(
     values = _unpacked_fields(nvals, names, widths)
     if names:
         _count_and_fill(cloud, values, src, nx, ncell, fallback, stats)
+        for nm, f in (deviation or {}).items():
+            if nm in values:
+                values[nm][:] = _mesh_plus_deviation(cloud, nm, f, nx, ncell)
     stats.removed, stats.added = cloud.replace_sorted(remove, nx, ncell, values)
     return stats
 
@@ -132,6 +145,24 @@ def _unpacked_fields(
         values[nm] = nvals[:, o : o + w]
         o += w
     return values
+
+
+def _mesh_plus_deviation(
+    cloud: Cloud, name: str, f: Any, nx: np.ndarray, ncell: np.ndarray
+) -> np.ndarray:
+    """``f(x) + mean over the cell's particles of (value - f(x_p))`` at the new positions."""
+    from pfem2x.particles.transfer import _eval_at  # noqa: PLC0415
+
+    pm = cloud.pmesh
+    vals = cloud.field2d(name)
+    k = vals.shape[1]
+    dev = vals - _eval_at(pm, f, cloud.x, cloud.cells).reshape(-1, k)
+    count = np.bincount(cloud.cells, minlength=pm.n_cells)[ncell]
+    mean = np.zeros((len(nx), k))
+    for j in range(k):
+        sums = np.bincount(cloud.cells, weights=dev[:, j], minlength=pm.n_cells)[ncell]
+        np.divide(sums, count, out=mean[:, j], where=count > 0)
+    return _eval_at(pm, f, nx, ncell).reshape(-1, k) + mean
 
 
 def _count_and_fill(

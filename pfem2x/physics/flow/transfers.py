@@ -2,7 +2,8 @@ r"""Particle–mesh transfers of the PFEM-2 flow frame (:mod:`~pfem2x.physics.fl
 
 Step 2's velocity projection (plain, mass-weighted, affine), step 4's increment, the cell phase
 fraction of the particles and the volume-keeping shift of the level set
-``dist``, and step 5's population control, as a mixin of
+``dist``, and step 5's population control (new particles' velocity:
+``flow.new_particle_velocity``), as a mixin of
 :class:`~pfem2x.physics.flow.pfem2.LagrangianFlow` (its attributes: ``cloud_``,
 ``u``, ``u_hat``, ``phase``, ``dist``, ``dofmap``, ``cell_vol``, ...).
 """
@@ -206,8 +207,15 @@ class ParticleTransfers:
                 fb["phase"] = self.phase
             if self.dist is not None:
                 fb["dist"] = self.dist
+            # flow.new_particle_velocity = "mesh": u_h(x) + the cell's mean u_p - u_h(x_p)
+            dev = {"u": self.u} if self.scene.flow.new_particle_velocity == "mesh" else None
             self.last_population = P.rebalance(
-                c, nmin, nmax, seed=meth.seed + 7919 * (self.step_count + 1), fallback=fb
+                c,
+                nmin,
+                nmax,
+                seed=meth.seed + 7919 * (self.step_count + 1),
+                fallback=fb,
+                deviation=dev,
             )
             if self.problem.two_phase:
                 ph = c.field("phase")
