@@ -45,4 +45,8 @@ def main(out: str, runs: list[str]) -> None:
 
 
 if __name__ == "__main__":
+    if len(sys.argv) < 3 or sys.argv[1].startswith("-"):
+        usage = __doc__.strip().splitlines()[2].replace("``", "").replace("Usage:", "usage:")
+        print(usage, file=sys.stderr)
+        sys.exit(2)
     main(sys.argv[1], sys.argv[2:])

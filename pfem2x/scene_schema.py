@@ -374,12 +374,13 @@ SCHEMA: dict[str, dict[str, Key]] = {
             doc="PFEM-2, two phases: pic_fraction of the light phase (no region, e.g. air)",
         ),
         "new_particle_velocity": Key(
-            choice("fit", "mesh"),
+            choice("fit", "mesh", "mesh_deviation"),
             "fit",
             doc="PFEM-2, population control: a new particle's velocity from a least-squares "
-            "fit of its cell's particles, used up to 6 Mahalanobis radii from them (fit), or "
-            "the mesh velocity at its position plus the mean deviation of its cell's "
-            "particles from the mesh velocity (mesh: bounded by construction, no limit)",
+            "fit of its cell's particles, used up to 6 Mahalanobis radii from them (fit); "
+            "the mesh velocity at its position (mesh: within the cell's nodal values, no "
+            "limit); or that plus the mean deviation of its cell's particles from the mesh "
+            "velocity (mesh_deviation)",
         ),
         "light_source": Key(
             choice("full", "gravity"),

@@ -100,12 +100,12 @@ def test_new_values_stay_near_their_samples(comm):
 
 
 @pytest.mark.mpi
-def test_deviation_values_are_mesh_plus_cell_mean(comm):
-    """``deviation``: a new particle gets f(x) + its cell's mean particle deviation from f.
+def test_mesh_values_with_and_without_the_cell_deviation(comm):
+    """``mesh_fields``: a new particle gets f(x) (+ its cell's mean deviation from f).
 
-    With one deviation per cell the new values are exact (f + that deviation); with
-    noisy deviations they stay within the range of the deviations; the three nearly
-    collinear particles of the test above give values within their own range.
+    With one deviation per cell the new values are exact: f + that deviation with
+    ``mesh_deviation``, f without; with noisy deviations they stay within the range
+    of the deviations.
     """
     d = build_mesh(comm, "rectangle", [[0.0, 0.0], [1.0, 1.0]], [6, 6])
     V = compat.function_space(d.mesh, 1)
@@ -115,28 +115,36 @@ def test_deviation_values_are_mesh_plus_cell_mean(comm):
     seed_cells(cl, 2, seed=3)
     cell_dev = 0.05 * (cl.cells % 7)
     cl["T"] = _lin(cl.x) + cell_dev
-    st = rebalance(cl, 5, 0, seed=2, deviation={"T": f})
+    st = rebalance(cl, 5, 0, seed=2, mesh_fields={"T": f}, mesh_deviation=True)
     assert comm.allreduce(st.added, op=MPI.SUM) > 0
     err = np.abs(cl["T"] - _lin(cl.x) - 0.05 * (cl.cells % 7)).max(initial=0.0)
     assert comm.allreduce(err, op=MPI.MAX) < 1e-12
+    # without the deviation: the old particles keep theirs, the new ones have none
+    rebalance(cl, 8, 0, seed=3, mesh_fields={"T": f})
+    r = cl["T"] - _lin(cl.x)
+    new = np.abs(r) < 1e-12
+    err = np.abs(r[~new] - 0.05 * (cl.cells[~new] % 7)).max(initial=0.0)
+    assert comm.allreduce(err, op=MPI.MAX) < 1e-12
+    assert comm.allreduce(int(new.sum()), op=MPI.SUM) >= comm.allreduce(cl.n, op=MPI.SUM) // 4
     # noisy deviations: new values within the deviations' range
     cl = Cloud(d, {"T": ()})
     seed_cells(cl, 2, seed=4)
     dev = np.random.default_rng(comm.rank).uniform(-0.5, 0.5, cl.n)
     cl["T"] = _lin(cl.x) + dev
-    rebalance(cl, 5, 0, seed=2, deviation={"T": f})
+    rebalance(cl, 5, 0, seed=2, mesh_fields={"T": f}, mesh_deviation=True)
     r = cl["T"] - _lin(cl.x)
     lo = comm.allreduce(r.min(initial=np.inf), op=MPI.MIN)
     hi = comm.allreduce(r.max(initial=-np.inf), op=MPI.MAX)
     assert -0.5 - 1e-12 <= lo and hi <= 0.5 + 1e-12, (lo, hi)
 
 
-def test_deviation_bounds_collinear_samples(comm):
+@pytest.mark.parametrize("deviation", [False, True])
+def test_mesh_values_bound_collinear_samples(comm, deviation):
     """The collinear samples (0, 1, 0) about f = 0: new values within [0, 1]."""
     d = build_mesh(comm, "rectangle", [[0.0, 0.0], [1.0, 1.0]], [1, 1])
     f = dolfinx.fem.Function(compat.function_space(d.mesh, 1))
     cl = _collinear_cloud(d)
-    rebalance(cl, 4, 0, seed=1, deviation={"T": f})
+    rebalance(cl, 4, 0, seed=1, mesh_fields={"T": f}, mesh_deviation=deviation)
     t = cl["T"]
     lo = comm.allreduce(t.min(initial=np.inf), op=MPI.MIN)
     hi = comm.allreduce(t.max(initial=-np.inf), op=MPI.MAX)

@@ -13,11 +13,11 @@
   otherwise get an extrapolated value far outside anything near it), else
   their inverse-distance average; only when no particle is near does a mesh
   field (``fallback``) give the value (eq. 4.14), and without one the new
-  particle gets 0 (counted as ``unfilled``). Fields given as ``deviation``
-  instead take a mesh field's value at the new position plus the mean
-  deviation of the cell's particles from that field: within the range of the
-  field's nodal values plus the deviations, exact for the field itself, and
-  no limit to tune.
+  particle gets 0 (counted as ``unfilled``). Fields given in ``mesh_fields``
+  instead take a mesh field's value at the new position (within the cell's
+  nodal values: no limit to tune), with ``mesh_deviation`` plus the mean
+  deviation of the cell's particles from that field (exact for the field plus a
+  constant per cell).
 """
 
 from __future__ import annotations
@@ -62,7 +62,8 @@ def rebalance(
     fallback: Mapping[str, Any] | None = None,
     cells: np.ndarray | None = None,
     candidates: int = 8,
-    deviation: Mapping[str, Any] | None = None,
+    mesh_fields: Mapping[str, Any] | None = None,
+    mesh_deviation: bool = False,
 ) -> PopulationStats:
     """Add / remove particles so each owned cell has ``nmin <= count <= nmax``.
 
@@ -81,11 +82,12 @@ def rebalance(
         Optional bool mask over owned cells: only these are touched.
     candidates:
         Random candidate positions tried per new particle.
-    deviation:
+    mesh_fields:
         ``{field: P1 Function}``: new particles of these fields get the
-        function's value at their position plus the mean of ``value -
-        function`` over the particles of their cell before the control (a
-        cell without particles: the function's value).
+        function's value at their position.
+    mesh_deviation:
+        With ``mesh_fields``: plus the mean of ``value - function`` over the
+        particles of their cell before the control (none there: nothing added).
 
     Returns
     -------
@@ -121,9 +123,9 @@ def rebalance(
     values = _unpacked_fields(nvals, names, widths)
     if names:
         _count_and_fill(cloud, values, src, nx, ncell, fallback, stats)
-        for nm, f in (deviation or {}).items():
+        for nm, f in (mesh_fields or {}).items():
             if nm in values:
-                values[nm][:] = _mesh_plus_deviation(cloud, nm, f, nx, ncell)
+                values[nm][:] = _mesh_values(cloud, nm, f, nx, ncell, mesh_deviation)
     stats.removed, stats.added = cloud.replace_sorted(remove, nx, ncell, values)
     return stats
 
@@ -147,15 +149,17 @@ def _unpacked_fields(
     return values
 
 
-def _mesh_plus_deviation(
-    cloud: Cloud, name: str, f: Any, nx: np.ndarray, ncell: np.ndarray
+def _mesh_values(
+    cloud: Cloud, name: str, f: Any, nx: np.ndarray, ncell: np.ndarray, deviation: bool
 ) -> np.ndarray:
-    """``f(x) + mean over the cell's particles of (value - f(x_p))`` at the new positions."""
+    """``f(x)`` at the new positions, ``deviation``: plus the cell's mean ``value - f(x_p)``."""
     from pfem2x.particles.transfer import _eval_at  # noqa: PLC0415
 
     pm = cloud.pmesh
     vals = cloud.field2d(name)
     k = vals.shape[1]
+    if not deviation:
+        return _eval_at(pm, f, nx, ncell).reshape(-1, k)
     dev = vals - _eval_at(pm, f, cloud.x, cloud.cells).reshape(-1, k)
     count = np.bincount(cloud.cells, minlength=pm.n_cells)[ncell]
     mean = np.zeros((len(nx), k))

@@ -75,9 +75,9 @@ motion alone (no convective term is ever assembled). One step
    Dam break (100 × 50, Courant 5, air α = 1): water volume change 0.43 /
    0.59 % (seeds 1 / 2) instead of 0.88 / 0.91 %, front unchanged.
 5. **Population**: cells outside ``method.min_particles_per_cell`` /
-   ``max_particles_per_cell`` get / lose particles; new ones take ``u`` and
-   ``phase`` (and ``dist``) from a fit of their neighbours (the phase is then rounded back
-   to 0/1, so it stays sharp).
+   ``max_particles_per_cell`` get / lose particles; new ones take ``u`` (or only
+   ``phase``, ``dist``: ``flow.new_particle_velocity``) from a fit of their
+   neighbours (the phase then rounded to 0/1: it stays sharp).
 
 Two phases with gravity: :math:`\rho g` is replaced everywhere (source :math:`a`,
 pressure step) by the balanced force of :mod:`pfem2x.physics.flow.balanced`,

@@ -207,15 +207,17 @@ class ParticleTransfers:
                 fb["phase"] = self.phase
             if self.dist is not None:
                 fb["dist"] = self.dist
-            # flow.new_particle_velocity = "mesh": u_h(x) + the cell's mean u_p - u_h(x_p)
-            dev = {"u": self.u} if self.scene.flow.new_particle_velocity == "mesh" else None
+            # flow.new_particle_velocity: "mesh" u_h(x), "mesh_deviation" + the cell's
+            # mean u_p - u_h(x_p), "fit" the fit of the particles near
+            mode = self.scene.flow.new_particle_velocity
             self.last_population = P.rebalance(
                 c,
                 nmin,
                 nmax,
                 seed=meth.seed + 7919 * (self.step_count + 1),
                 fallback=fb,
-                deviation=dev,
+                mesh_fields=None if mode == "fit" else {"u": self.u},
+                mesh_deviation=mode == "mesh_deviation",
             )
             if self.problem.two_phase:
                 ph = c.field("phase")
