@@ -3,7 +3,7 @@
 Usage::
 
     python benchmarks/interfoam_case.py make CASE --nx 100 --ny 400 (--max-co 0.5 | --dt 0.001)
-        [--tau-end 2.5] [--write-every 0.025] [--sign 1] [--nproc 2]
+        [--tau-end 2.5] [--write-every 0.025] [--sign 1] [--sides slip] [--nproc 2]
     python benchmarks/interfoam_case.py run CASE [--np 1] [--tlim 1500]
     python benchmarks/interfoam_case.py tips CASE [--quiet]
 
@@ -12,6 +12,9 @@ densities, viscosity) and ``[mesh] bounds`` are read from the scene file, so bot
 solve the same flow. Heavy fluid (phase ``heavy``, ``alpha.heavy = 1``) above light fluid,
 equal dynamic viscosity, no surface tension, slip on all four walls, fluids at rest,
 interface y = sign * 0.1 d cos(2 pi x / d) (``--sign -1`` flips it: spike on the axis).
+``--sides symmetry`` makes the left and right sides ``symmetryPlane`` patches (every field
+mirrored) instead of walls with ``slip`` velocity, ``fixedFluxPressure`` and ``zeroGradient``
+alpha.
 ``alpha.heavy`` at t = 0 is the area fraction of each cell above that curve (Gauss-Legendre
 quadrature of the clipped column height, written as a nonuniform list: no setFields).
 
@@ -105,6 +108,8 @@ class CaseSpec:
     write_every: float = 0.025
     sign: float = 1.0
     nproc: int = 2
+    #: the left and right sides: "slip" walls or "symmetry" planes
+    sides: str = "slip"
 
 
 # --------------------------------------------------------------------------- writing
@@ -133,8 +138,10 @@ def initial_alpha(pb: Problem, nx: int, ny: int, sign: float, order: int = 16) -
     return (0.5 * h @ wi).ravel()
 
 
-def _boundary(entry: str) -> str:
-    walls = "".join(f"    {w} {{ {entry} }}\n" for w in ("left", "right", "bottom", "top"))
+def _boundary(entry: str, sides: str = "slip") -> str:
+    side = "type symmetryPlane;" if sides == "symmetry" else entry
+    ents = {"left": side, "right": side, "bottom": entry, "top": entry}
+    walls = "".join(f"    {w} {{ {e} }}\n" for w, e in ents.items())
     return f"boundaryField\n{{\n{walls}    frontAndBack {{ type empty; }}\n}}\n"
 
 
@@ -148,7 +155,7 @@ def write_case(case: Path, spec: CaseSpec, pb: Problem | None = None) -> None:
     t_end = spec.tau_end / pb.time_factor
     # end on a write time at or after tau_end, so that the tips can be interpolated there
     end = math.ceil(t_end / spec.write_every - 1e-9) * spec.write_every
-    write_block_mesh(case, pb, nx, ny)
+    write_block_mesh(case, pb, nx, ny, "symmetryPlane" if spec.sides == "symmetry" else "wall")
     if spec.max_co is not None:
         dy = (pb.y1 - pb.y0) / ny
         step = (
@@ -212,23 +219,24 @@ value (0 {-pb.g:g} 0);
     )  # fmt: skip
     _foam_file(case / "0/U", "volVectorField", "U",
                "dimensions [0 1 -1 0 0 0 0];\ninternalField uniform (0 0 0);\n"
-               + _boundary("type slip;"))  # fmt: skip
+               + _boundary("type slip;", spec.sides))  # fmt: skip
     _foam_file(case / "0/p_rgh", "volScalarField", "p_rgh",
                "dimensions [1 -1 -2 0 0 0 0];\ninternalField uniform 0;\n"
-               + _boundary("type fixedFluxPressure; value uniform 0;"))  # fmt: skip
+               + _boundary("type fixedFluxPressure; value uniform 0;", spec.sides))  # fmt: skip
     alpha = initial_alpha(pb, nx, ny, spec.sign)
     values = "\n".join(f"{a:.10g}" for a in alpha)
     _foam_file(case / "0/alpha.heavy", "volScalarField", "alpha.heavy",
                "dimensions [0 0 0 0 0 0 0];\n"
                f"internalField nonuniform List<scalar>\n{alpha.size}\n(\n{values}\n)\n;\n"
-               + _boundary("type zeroGradient;"))  # fmt: skip
+               + _boundary("type zeroGradient;", spec.sides))  # fmt: skip
     (case / "case.txt").write_text(repr(asdict(spec) | asdict(pb)) + "\n")
 
 
 # --------------------------------------------------------------------------- running
-def write_block_mesh(case: Path, pb: Any, nx: int, ny: int) -> None:
+def write_block_mesh(case: Path, pb: Any, nx: int, ny: int, side_type: str = "wall") -> None:
     """``system/blockMeshDict``: ``nx`` x ``ny`` hexahedra in one layer over
-    ``[pb.x0, pb.x1] x [pb.y0, pb.y1]``, walls left/right/bottom/top, ``empty`` front/back."""
+    ``[pb.x0, pb.x1] x [pb.y0, pb.y1]``, walls bottom/top, left/right of ``side_type``
+    (``wall`` or ``symmetryPlane``), ``empty`` front/back."""
     dz = (pb.x1 - pb.x0) / nx
     v = [(pb.x0, pb.y0), (pb.x1, pb.y0), (pb.x1, pb.y1), (pb.x0, pb.y1)]
     verts = " ".join(f"({x:g} {y:g} {z:g})" for z in (0.0, dz) for x, y in v)
@@ -239,8 +247,8 @@ blocks ( hex (0 1 2 3 4 5 6 7) ({nx} {ny} 1) simpleGrading (1 1 1) );
 edges ();
 boundary
 (
-    left   {{ type wall; faces ((0 4 7 3)); }}
-    right  {{ type wall; faces ((1 2 6 5)); }}
+    left   {{ type {side_type}; faces ((0 4 7 3)); }}
+    right  {{ type {side_type}; faces ((1 2 6 5)); }}
     bottom {{ type wall; faces ((0 1 5 4)); }}
     top    {{ type wall; faces ((3 7 6 2)); }}
     frontAndBack {{ type empty; faces ((0 3 2 1) (4 5 6 7)); }}
@@ -430,6 +438,7 @@ def main(argv: list[str] | None = None) -> None:
     mk.add_argument("--write-every", type=float, default=0.025, help="alpha output interval")
     mk.add_argument("--sign", type=float, default=1.0, choices=(1.0, -1.0))
     mk.add_argument("--nproc", type=int, default=2, help="ranks for decomposeParDict")
+    mk.add_argument("--sides", choices=("slip", "symmetry"), default="slip", help="left/right")
     mk.add_argument("--overwrite", action="store_true")
     rn = sub.add_parser("run", help="blockMesh + interFoam, then tips.csv")
     rn.add_argument("case", type=Path)
@@ -451,7 +460,9 @@ def main(argv: list[str] | None = None) -> None:
             if not a.overwrite:
                 fail(f"{a.case}: exists and is not empty (use --overwrite)")
             shutil.rmtree(a.case)
-        spec = CaseSpec(a.nx, a.ny, a.max_co, a.dt, a.tau_end, a.write_every, a.sign, a.nproc)
+        spec = CaseSpec(
+            a.nx, a.ny, a.max_co, a.dt, a.tau_end, a.write_every, a.sign, a.nproc, a.sides
+        )
         write_case(a.case, spec)
         print(f"wrote {a.case}")
         return

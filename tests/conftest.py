@@ -144,3 +144,23 @@ def shared_tmp(request):
     comm.Barrier()
     if comm.rank == 0 and not os.environ.get("PFEM2X_KEEP_TMP"):
         shutil.rmtree(path, ignore_errors=True)
+
+
+@pytest.fixture
+def benchmark_script():
+    """``load(name)``: the module ``benchmarks/<name>.py`` (registered while it executes)."""
+    import importlib.util
+
+    root = pathlib.Path(__file__).resolve().parent.parent
+
+    def load(name: str):
+        spec = importlib.util.spec_from_file_location(name, root / "benchmarks" / f"{name}.py")
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules[name] = mod  # (its dataclasses look their module up)
+        try:
+            spec.loader.exec_module(mod)
+        finally:
+            del sys.modules[name]
+        return mod
+
+    return load

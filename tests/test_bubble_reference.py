@@ -8,7 +8,6 @@ against those series and the shapes at t = 3.
 
 import csv
 import importlib.util
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -197,17 +196,9 @@ def test_bubble_plot_of_a_run_that_is_the_reference(tmp_path, capsys):
     assert len(err) == 1 and err[0].startswith("error:") and not bad.exists()
 
 
-def test_interfoam_series_curve_table(capsys):
+def test_interfoam_series_curve_table(capsys, benchmark_script):
     """The stored interFoam series against MooNMD: one row each; a bad file is one error."""
-    spec = importlib.util.spec_from_file_location(
-        "interfoam_bubble", ROOT / "benchmarks/interfoam_bubble.py"
-    )
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["interfoam_bubble"] = mod  # (its dataclasses look their module up)
-    try:
-        spec.loader.exec_module(mod)
-    finally:
-        del sys.modules["interfoam_bubble"]
+    mod = benchmark_script("interfoam_bubble")
     files = sorted((DATA / "interfoam").glob("series_n*.csv"))
     assert len(files) == 8
     mod.main(["curves", *map(str, files)])

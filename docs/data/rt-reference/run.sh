@@ -38,6 +38,11 @@ run pf_lr_co8    --set time.courant=8
 CASE=("$PY" benchmarks/interfoam_case.py)
 "${CASE[@]}" make "$OUT/interfoam/s100_dt0.001_signm" --nx 100 --ny 400 --dt 0.001 --sign -1 --overwrite
 "${CASE[@]}" make "$OUT/interfoam/f200_dt0.004" --nx 200 --ny 800 --dt 0.004 --tau-end 2 --overwrite
-for c in s100_dt0.001_signm f200_dt0.004; do
+# 50 x 200 at dt = 0.001 to tau = 2: flipped, and the sides as symmetry planes
+"${CASE[@]}" make "$OUT/interfoam/r050_dt0.001_signm" --nx 50 --ny 200 --dt 0.001 --tau-end 2 \
+  --sign -1 --overwrite
+"${CASE[@]}" make "$OUT/interfoam/r050_dt0.001_sym" --nx 50 --ny 200 --dt 0.001 --tau-end 2 \
+  --sides symmetry --overwrite
+for c in s100_dt0.001_signm f200_dt0.004 r050_dt0.001_signm r050_dt0.001_sym; do
   "${CASE[@]}" run "$OUT/interfoam/$c" --tlim 6000
 done

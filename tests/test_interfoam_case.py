@@ -1,0 +1,35 @@
+"""The Rayleigh–Taylor interFoam case generator (``benchmarks/interfoam_case.py``), no OpenFOAM."""
+
+import re
+
+import pytest
+
+
+@pytest.fixture
+def gen(benchmark_script):
+    return benchmark_script("interfoam_case")
+
+
+def _patch(text: str, name: str) -> str:
+    return re.search(rf"{name}\s*\{{\s*type (\w+);", text).group(1)
+
+
+@pytest.mark.parametrize(("sides", "side_type", "u_side"), [
+    ("slip", "wall", "slip"),
+    ("symmetry", "symmetryPlane", "symmetryPlane"),
+])  # fmt: skip
+def test_sides_of_the_case(gen, tmp_path, sides, side_type, u_side):
+    """``--sides``: slip walls (the reference runs) or symmetry planes left and right."""
+    case = tmp_path / "case"
+    assert gen.main(["make", str(case), "--nx", "4", "--ny", "8", "--dt", "0.01",
+                     "--tau-end", "0.1", "--sides", sides]) is None  # fmt: skip
+    mesh = (case / "system/blockMeshDict").read_text()
+    assert _patch(mesh, "left") == _patch(mesh, "right") == side_type
+    assert _patch(mesh, "bottom") == _patch(mesh, "top") == "wall"
+    u = (case / "0/U").read_text()
+    assert _patch(u, "left") == _patch(u, "right") == u_side
+    assert _patch(u, "bottom") == "slip"
+    for field in ("0/p_rgh", "0/alpha.heavy"):
+        text = (case / field).read_text()
+        assert (_patch(text, "left") == "symmetryPlane") == (sides == "symmetry"), field
+    assert f"'sides': '{sides}'" in (case / "case.txt").read_text()
