@@ -102,10 +102,10 @@ def test_mesh_velocity_of_new_particles_follows_the_serial_run(shared_tmp):
     """``flow.new_particle_velocity = "mesh"``: the scene's collapse, serial and 2 ranks alike.
 
     New particles take the mesh velocity at their position instead of the fit of the
-    particles near (which carries their FLIP noise). The water volume stays within the
-    scene's bound (measured 0.39 / 0.23 / 0.70 % with seeds 1 / 2 / 3), and the round-off
-    of the partition grows much less: under ``mpirun -n 2`` the front up to T = 2.8 follows
-    the serial run within 0.2 % of a (measured 2e-4 / 6e-4 / 6e-4 with seeds 1 / 2 / 3;
+    particles near. The water volume stays within the scene's bound (measured 0.39 / 0.23 /
+    0.70 % with seeds 1 / 2 / 3), and the front follows the partition's round-off much
+    less: under ``mpirun -n 2`` the front up to T = 2.8 follows the serial run within
+    0.2 % of a (measured 2e-4 / 6e-4 / 6e-4 with seeds 1 / 2 / 3;
     with the fit 2.9e-3 / 9.7e-3 / 1.6e-3; with ``"mesh_deviation"`` 1.3e-2 / 4.5e-2 /
     3.3e-3).
     """
