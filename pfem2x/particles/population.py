@@ -158,15 +158,14 @@ def _mesh_values(
     pm = cloud.pmesh
     vals = cloud.field2d(name)
     k = vals.shape[1]
-    if not deviation:
-        return _eval_at(pm, f, nx, ncell).reshape(-1, k)
-    dev = vals - _eval_at(pm, f, cloud.x, cloud.cells).reshape(-1, k)
-    count = np.bincount(cloud.cells, minlength=pm.n_cells)[ncell]
-    mean = np.zeros((len(nx), k))
-    for j in range(k):
-        sums = np.bincount(cloud.cells, weights=dev[:, j], minlength=pm.n_cells)[ncell]
-        np.divide(sums, count, out=mean[:, j], where=count > 0)
-    return _eval_at(pm, f, nx, ncell).reshape(-1, k) + mean
+    out = _eval_at(pm, f, nx, ncell).reshape(-1, k)
+    if deviation:
+        dev = vals - _eval_at(pm, f, cloud.x, cloud.cells).reshape(-1, k)
+        count = np.bincount(cloud.cells, minlength=pm.n_cells)[ncell]
+        for j in range(k):
+            sums = np.bincount(cloud.cells, weights=dev[:, j], minlength=pm.n_cells)[ncell]
+            out[:, j] += np.divide(sums, count, out=np.zeros(len(nx)), where=count > 0)
+    return out
 
 
 def _count_and_fill(
