@@ -353,6 +353,13 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "u^n + dt du/dt and a^n + dt da/dt of the last step (the first step: euler), "
             "euler = along u^n with the source a^n (theta = 0, the paper)",
         ),
+        "predictor_substeps": Key(
+            number(1.0, 16.0),
+            1.0,
+            doc="PFEM-2, extra_pass: the first pass's sub-step limits (method.substep_courant "
+            "and substep_gradient) times this: its move only estimates the end of the step, "
+            "the second pass moves the particles; 1: the second pass's limits",
+        ),
         "viscous_step": Key(
             choice("sdirk2", "euler"),
             "sdirk2",
@@ -604,6 +611,7 @@ FRAME_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
             "flow.extra_pass",
             "flow.pass_splits",
             "flow.predictor",
+            "flow.predictor_substeps",
             "flow.viscous_step",
             "flow.explicit_pressure",
             "flow.pass_pressure",

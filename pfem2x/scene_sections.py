@@ -206,6 +206,7 @@ class FlowSection(Section):
     extra_pass: bool
     pass_splits: int
     predictor: str
+    predictor_substeps: float
     viscous_step: str
     pic_fraction: float
     pic_fraction_light: float

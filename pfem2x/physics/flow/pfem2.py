@@ -470,8 +470,8 @@ class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers,
         meth = self.scene.method
         vel = self._u_old if theta > 0.0 else self.u
         kw: dict[str, Any] = {
-            "courant": meth.substep_courant,
-            "gradient_courant": meth.substep_gradient,
+            "courant": meth.substep_courant * self._substep_scale,
+            "gradient_courant": meth.substep_gradient * self._substep_scale,
         }
         if theta > 0.0:
             kw.update(velocity_next=self.u, theta=theta)
