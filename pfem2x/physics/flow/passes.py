@@ -132,6 +132,7 @@ class TwoPasses:
             if self._a_old is not None:
                 self._a_old.x.array[:] = force_old
         self._substep_scale = float(self.scene.flow.predictor_substeps)
+        self._first_pass = True
         try:
             if guess is None:
                 self._pass(dt, 0.0)
@@ -139,7 +140,7 @@ class TwoPasses:
                 self.u.x.array[:] = guess[0]
                 self._pass(dt, 0.5, (force_old, guess[1], 1))
         finally:
-            self._substep_scale = 1.0
+            self._substep_scale, self._first_pass = 1.0, False
         if self.consistent_end_source:
             self._consistent_pressure()  # a^(1) from the pressure of u^(1)
         self._viscous_l_stable = sdirk

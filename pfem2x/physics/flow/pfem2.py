@@ -396,8 +396,7 @@ class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers,
         if not pr.two_phase:
             self.frac[:] = 1.0
         else:
-            P.project(c, "phase", self.phase, method="average", empty="neighbours")
-            self.phi.x.array[:] = self.phase.x.array - 0.5
+            self._project_phase()
             if self.dist is not None:
                 # linear-exact fit: a flat layer's distance gives a flat zero iso-line
                 P.project(c, "dist", self.dist, method="linear", empty="neighbours")

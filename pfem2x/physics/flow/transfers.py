@@ -30,6 +30,8 @@ class ParticleTransfers:
     pic_fraction: float
     pic_fraction_light: float
     level_shift: float
+    #: the first of two passes is running (:mod:`.passes`)
+    _first_pass: bool = False
 
     def _particle_fraction(self) -> np.ndarray:
         """Fraction of each owned cell's particles with ``phase = 1`` (empty: the P1 phase)."""
@@ -40,6 +42,18 @@ class ParticleTransfers:
         nodal = self.phase.x.array[self.dofmap[: self.n_owned]].mean(axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(n > 0, heavy[: self.n_owned] / np.maximum(n, 1), nodal)
+
+    def _project_phase(self) -> None:
+        """The P1 ``phase`` (``"average"``) and ``phi = phase - 1/2`` of the particles.
+
+        Output, tips and new particles read them, and the particles' cell density
+        (``flow.density = "particles"``) in empty cells; so with the level set's
+        density the first of two passes skips them (the second overwrites them).
+        """
+        if self._first_pass and self.level_set_density and self.jump is not None:
+            return
+        P.project(self.cloud_, "phase", self.phase, method="average", empty="neighbours")
+        self.phi.x.array[:] = self.phase.x.array - 0.5
 
     def _conserve_volume(self) -> None:
         r"""Shift the level set ``dist`` so the heavy phase keeps its initial volume (collective).
