@@ -28,6 +28,7 @@ from types import MappingProxyType
 from typing import Any
 
 from pfem2x.expr import FUNCTIONS, VARIABLES, Expression, ExpressionError
+from pfem2x.scene_reference import schema_markdown
 from pfem2x.scene_schema import (
     BYTES_PER_PARTICLE,
     FLOW_BOUNDARIES,
@@ -42,7 +43,6 @@ from pfem2x.scene_schema import (
     _type_name,
     expr_text,
     number,
-    schema_markdown,
 )
 from pfem2x.scene_sections import (
     EffectsSection,
