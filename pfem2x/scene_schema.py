@@ -1,4 +1,4 @@
-"""The scene schema: key checkers, the table of allowed keys and the generated reference.
+"""The scene schema: key checkers and the table of allowed keys.
 
 Every ``[section].key`` of a scene is a :class:`Key` in :data:`SCHEMA` (checker,
 default, doc line), with :data:`FRAME_KEYS` telling which frame reads which numerical
