@@ -68,3 +68,38 @@ def test_probe_runs_once_per_installation(tmp_path, monkeypatch):
     cache = json.loads(pio.probe_cache_file().read_text())
     assert list(cache.values()) == [True]
     assert str(tmp_path) in str(pio.probe_cache_file())
+
+
+def test_snapshots_of_one_mesh_reuse_the_figure_without_stale_artists(tmp_path, monkeypatch):
+    """The second snapshot of a mesh redraws the first one's figure (the 2D canvas).
+
+    What one snapshot draws (an iso-line, the interface, the range, the title) must not
+    remain in the next: a snapshot made on the reused figure is byte-identical to the
+    same snapshot made on a new one.
+    """
+    import numpy as np
+
+    from pfem2x import compat
+    from pfem2x.compat import MPI, dolfinx
+
+    if MPI.COMM_WORLD.size > 1:
+        pytest.skip("serial")
+    msh = dolfinx.mesh.create_unit_square(MPI.COMM_SELF, 8, 4)
+    u = dolfinx.fem.Function(compat.function_space(msh, 1))
+    u.interpolate(lambda x: x[0] - 0.5)
+    seg = np.array([[[0.2, 0.1], [0.6, 0.9]]])
+    monkeypatch.setattr(pio, "_CANVAS", [])
+    pio.png_snapshot(tmp_path / "a.png", u, "first", contour=0.0, label="T", segments=seg)
+    canvas = pio._CANVAS[0]
+    u.x.array[:] *= 3.0
+    pio.png_snapshot(tmp_path / "b.png", u, "second", clim=(0.0, 1.0), label="T")
+    assert pio._CANVAS[0] is canvas, "the figure was not reused"
+    pio._CANVAS.clear()
+    pio.png_snapshot(tmp_path / "c.png", u, "second", clim=(0.0, 1.0), label="T")
+    assert pio._CANVAS[0] is not canvas
+    assert (tmp_path / "b.png").read_bytes() == (tmp_path / "c.png").read_bytes()
+    assert (tmp_path / "a.png").read_bytes() != (tmp_path / "b.png").read_bytes()
+    other = dolfinx.mesh.create_unit_square(MPI.COMM_SELF, 4, 4)
+    w = dolfinx.fem.Function(compat.function_space(other, 1))
+    pio.png_snapshot(tmp_path / "d.png", w, "another mesh")
+    assert pio._CANVAS[0].coords.shape[0] == 32, "a new mesh needs a new figure"
