@@ -493,11 +493,12 @@ class _Canvas:
 
     Snapshots of a run share the mesh, so the figure is built once (the triangulation,
     axes, ticks and colour bar) and each snapshot only sets the values, the range, the
-    interface and the texts before it is saved: half the time of a new figure. The axes
-    sit at fixed places in inches (no layout engine measuring every tick label at each
-    save): the plot area in the domain's aspect ratio, longest side 6.5 inches, with
-    room for the tick labels, the title and the colour bar's labels; the figure at least
-    5 inches wide for the title.
+    interface and the texts before it is saved: about a third of the time of a new figure
+    (docs/BENCHMARKS.md, "PNG snapshots on one figure"). The axes sit at fixed places in
+    inches (no layout engine measuring every tick label at each save): the plot area in
+    the domain's aspect ratio, longest side 6.5 inches, with room for the tick labels,
+    the title and the colour bar's labels; the figure at least 5 inches wide for the
+    title.
     """
 
     def __init__(self, coords: np.ndarray) -> None:
