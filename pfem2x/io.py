@@ -581,11 +581,9 @@ def _png_matplotlib(
 ) -> None:
     """A filled 2D plot: the domain's aspect ratio, a colour bar, the interface on top.
 
-    The figure of the last call is reused when the mesh is the same (:class:`_Canvas`).
+    The figure of the last call is reused when the mesh is the same (:class:`_Canvas`);
+    it draws on its own Agg canvas, so the user's pyplot backend is left as it is.
     """
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
     same = bool(_CANVAS) and _CANVAS[0].coords.shape == coords.shape
     if not (same and np.array_equal(_CANVAS[0].coords, coords)):
         _CANVAS[:] = [_Canvas(coords)]
