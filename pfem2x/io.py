@@ -138,50 +138,83 @@ def _fmt(v: Any) -> Any:
     return v
 
 
-def write_vtp(path: str | os.PathLike, points: np.ndarray, fields: dict[str, np.ndarray]) -> None:
-    """Write a VTK XML PolyData point cloud (binary, base64) readable by ParaView."""
-    pts = np.zeros((points.shape[0], 3))
-    pts[:, : points.shape[1]] = points
-    n = pts.shape[0]
+def write_vtp(
+    path: str | os.PathLike,
+    points: np.ndarray,
+    fields: dict[str, np.ndarray],
+    precision: str = "double",
+) -> None:
+    """Write a VTK XML PolyData point cloud (inline binary, base64) readable by ParaView.
 
-    def arr(a: np.ndarray, name: str | None, ncomp: int) -> bytes:
-        a = np.ascontiguousarray(a, dtype=np.float64 if a.dtype.kind == "f" else np.int64)
+    Parameters
+    ----------
+    path:
+        The ``.vtp`` file.
+    points:
+        Positions, shape ``(n, gdim)`` (padded to 3 coordinates).
+    fields:
+        Point data: ``(n,)`` scalars or ``(n, k)`` vectors (2-vectors padded to 3).
+    precision:
+        ``"double"`` (Float64) or ``"single"`` (Float32) for positions and float
+        fields; the vertex cells are Int32 (Int64 beyond 2**31 - 1 points).
+
+    Each array is encoded and written on its own (no copy of the whole file is
+    made in memory).
+    """
+    if precision not in ("single", "double"):
+        raise ValueError(f"precision must be 'single' or 'double', not {precision!r}")
+    n = points.shape[0]
+    fdt = np.float32 if precision == "single" else np.float64
+    idt = np.int32 if n < 2**31 - 1 else np.int64
+    names = {np.dtype(np.float32): "Float32", np.dtype(np.float64): "Float64"}
+    names.update({np.dtype(np.int32): "Int32", np.dtype(np.int64): "Int64"})
+
+    def arr(fh: Any, a: np.ndarray, name: str | None, ncomp: int) -> None:
         raw = a.tobytes()
-        head = np.array([len(raw)], dtype=np.uint64).tobytes()
-        typ = "Float64" if a.dtype == np.float64 else "Int64"
         nm = f' Name="{name}"' if name else ""
-        tag = f'<DataArray type="{typ}"{nm} NumberOfComponents="{ncomp}" format="binary">'
-        return tag.encode() + base64.b64encode(head + raw) + b"</DataArray>\n"
+        typ = names[a.dtype]
+        fh.write(
+            f'<DataArray type="{typ}"{nm} NumberOfComponents="{ncomp}" format="binary">'.encode()
+        )
+        fh.write(base64.b64encode(np.array([len(raw)], dtype=np.uint64).tobytes() + raw))
+        fh.write(b"</DataArray>\n")
 
-    conn = np.arange(n, dtype=np.int64)
-    parts = [
-        b'<?xml version="1.0"?>\n',
-        b'<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" header_type="UInt64">\n',
-        f'<PolyData><Piece NumberOfPoints="{n}" NumberOfVerts="{n}" NumberOfLines="0" '
-        'NumberOfStrips="0" NumberOfPolys="0">\n<PointData>\n'.encode(),
-    ]
-    for name, a in fields.items():
-        a = np.asarray(a)
-        ncomp = 1 if a.ndim == 1 else a.shape[1]
-        if ncomp == 2:  # ParaView wants 3-vectors
-            a = np.hstack([a, np.zeros((n, 1))])
-            ncomp = 3
-        parts.append(arr(a, name, ncomp))
-    parts.append(b"</PointData>\n<Points>\n")
-    parts.append(arr(pts, None, 3))
-    parts.append(b"</Points>\n<Verts>\n")
-    parts.append(arr(conn, "connectivity", 1))
-    parts.append(arr(conn + 1, "offsets", 1))
-    parts.append(b"</Verts>\n</Piece></PolyData>\n</VTKFile>\n")
-    Path(path).write_bytes(b"".join(parts))
+    def padded(a: np.ndarray, dtype: Any, below: int) -> np.ndarray:
+        if a.ndim == 2 and below <= a.shape[1] < 3:  # ParaView wants 3-vectors
+            out = np.zeros((a.shape[0], 3), dtype=dtype)
+            out[:, : a.shape[1]] = a
+            return out
+        return np.ascontiguousarray(a, dtype=dtype)
+
+    with open(path, "wb") as fh:
+        fh.write(b'<?xml version="1.0"?>\n')
+        fh.write(
+            b'<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" '
+            b'header_type="UInt64">\n'
+        )
+        fh.write(
+            f'<PolyData><Piece NumberOfPoints="{n}" NumberOfVerts="{n}" NumberOfLines="0" '
+            'NumberOfStrips="0" NumberOfPolys="0">\n<PointData>\n'.encode()
+        )
+        for name, a in fields.items():
+            a = np.asarray(a)
+            a = padded(a, fdt if a.dtype.kind == "f" else np.int64, below=2)
+            arr(fh, a, name, 1 if a.ndim == 1 else a.shape[1])
+        fh.write(b"</PointData>\n<Points>\n")
+        arr(fh, padded(np.asarray(points).reshape(n, -1), fdt, below=1), None, 3)
+        fh.write(b"</Points>\n<Verts>\n")
+        arr(fh, np.arange(n, dtype=idt), "connectivity", 1)
+        arr(fh, np.arange(1, n + 1, dtype=idt), "offsets", 1)
+        fh.write(b"</Verts>\n</Piece></PolyData>\n</VTKFile>\n")
 
 
 class ParticleWriter:
     """A ``particles.pvd`` collection of ``particles/step_NNNNN.vtp`` files (gathered to rank 0)."""
 
-    def __init__(self, comm: MPI.Comm, folder: str | os.PathLike):
+    def __init__(self, comm: MPI.Comm, folder: str | os.PathLike, precision: str = "double"):
         self.comm = comm
         self.folder = Path(folder)
+        self.precision = precision
         self.entries: list[tuple[float, str]] = []
         if comm.rank == 0:
             (self.folder / "particles").mkdir(parents=True, exist_ok=True)
@@ -197,7 +230,7 @@ class ParticleWriter:
         pos = np.concatenate(allp) if allp else positions
         flds = {k: np.concatenate([f[k] for f in allf]) for k in fields}
         rel = f"particles/step_{step:06d}.vtp"
-        write_vtp(self.folder / rel, pos, flds)
+        write_vtp(self.folder / rel, pos, flds, self.precision)
         self.entries.append((t, rel))
         body = "".join(f'<DataSet timestep="{tt:.10g}" file="{r}"/>\n' for tt, r in self.entries)
         atomic_write_text(

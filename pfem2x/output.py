@@ -231,7 +231,9 @@ class Outputs:
         self.png_schedule = AtTimes(png_times(scene))
         cloud = solver.cloud()
         self.particles = (
-            pio.ParticleWriter(comm, out) if outp.particles and cloud is not None else None
+            pio.ParticleWriter(comm, out, outp.particle_precision)
+            if outp.particles and cloud is not None
+            else None
         )
         xdmf = "fields.xdmf" if resume_step is None else f"fields_resumed_{resume_step}.xdmf"
         self.fields = (

@@ -288,6 +288,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "every": Key(number(0.0), 0.0, doc="time between field outputs (0: start and end only)"),
         "fields": Key(boolean, True),
         "particles": Key(boolean, True),
+        "particle_precision": Key(choice("single", "double"), "single"),
         "png": Key(boolean, True),
         "png_times": Key(
             times_check,
@@ -530,6 +531,8 @@ _DOCS = {
     "method.seed": "random seed of particle seeding (results do not depend on the rank count)",
     "output.fields": "write fields.xdmf",
     "output.particles": "write particles.pvd (lagrangian frames)",
+    "output.particle_precision": "Float32 (single) or Float64 (double) positions and fields "
+    "in particles/*.vtp (last_good_particles.vtp is always double)",
     "output.png": "write PNG snapshots (false: none, whatever output.png_times says)",
     "output.csv": "write diagnostics.csv",
     "transport.field": "name of the transported field",

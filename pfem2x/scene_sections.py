@@ -161,6 +161,7 @@ class OutputSection(Section):
     every: float
     fields: bool
     particles: bool
+    particle_precision: str
     png: bool
     png_times: tuple[float, ...] | None
     csv: bool

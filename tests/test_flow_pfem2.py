@@ -170,6 +170,8 @@ def test_small_rayleigh_taylor_courant4(shared_tmp):
     assert lo[0] == pytest.approx(fall, abs=0.1) and -hi[0] == pytest.approx(rise, abs=0.1)
     out = shared_tmp / "out"
     assert (out / "particles.pvd").is_file()
+    head = next((out / "particles").glob("*.vtp")).read_bytes()[:2000]
+    assert b'<DataArray type="Float32" Name="u"' in head  # output.particle_precision
     assert any(out.glob("phase_t*.png"))
     assert set(res.summary["timings"]) >= {"particles", "assembly", "solve"}
     csv = (out / "diagnostics.csv").read_text().splitlines()[0].split(",")

@@ -40,6 +40,47 @@ def test_vtp_is_valid_xml(tmp_path):
     assert "T" in names and "u" in names
 
 
+def _read_vtp(path):
+    """The arrays of a VTK XML PolyData file with inline base64 data, decoded by hand."""
+    import base64
+    import xml.etree.ElementTree as ET
+
+    types = {"Float32": np.float32, "Float64": np.float64, "Int32": np.int32, "Int64": np.int64}
+    root = ET.parse(path).getroot()
+    assert root.get("header_type") == "UInt64"
+    out = {}
+    for a in root.iter("DataArray"):
+        data = base64.b64decode(a.text)
+        nbytes = int(np.frombuffer(data[:8], dtype=np.uint64)[0])
+        assert nbytes == len(data) - 8
+        vals = np.frombuffer(data[8:], dtype=types[a.get("type")])
+        out[a.get("Name") or "Points"] = (
+            a.get("type"),
+            vals.reshape(-1, int(a.get("NumberOfComponents"))),
+        )
+    return out
+
+
+@pytest.mark.parametrize("precision", ["single", "double"])
+def test_vtp_round_trip(tmp_path, precision):
+    rng = np.random.default_rng(2)
+    n = 37
+    pos, u, phase = rng.random((n, 2)), rng.random((n, 2)), rng.random((n, 1))
+    label = np.arange(n, dtype=np.int64)
+    write_vtp(tmp_path / "p.vtp", pos, {"u": u, "phase": phase, "label": label}, precision)
+    got = _read_vtp(tmp_path / "p.vtp")
+    typ, tol = ("Float32", 1e-7) if precision == "single" else ("Float64", 0.0)
+    assert got["Points"][0] == typ and got["u"][0] == typ and got["phase"][0] == typ
+    assert np.abs(got["Points"][1][:, :2] - pos).max() <= tol and not got["Points"][1][:, 2].any()
+    assert np.abs(got["u"][1][:, :2] - u).max() <= tol and got["u"][1].shape == (n, 3)
+    assert got["phase"][1].shape == (n, 1) and np.abs(got["phase"][1] - phase).max() <= tol
+    assert got["label"][0] == "Int64" and np.array_equal(got["label"][1].ravel(), label)
+    assert np.array_equal(got["connectivity"][1].ravel(), np.arange(n))
+    assert np.array_equal(got["offsets"][1].ravel(), np.arange(1, n + 1))
+    with pytest.raises(ValueError, match="precision"):
+        write_vtp(tmp_path / "q.vtp", pos, {}, "half")
+
+
 @pytest.mark.mpi
 def test_interface_polylines_of_a_run(shared_tmp):
     sc = load_scene("rayleigh-taylor", ["output.png=false", "output.particles=false"], "small")
