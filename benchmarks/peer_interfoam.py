@@ -41,6 +41,10 @@ Modes (runs are sequential; threads pinned to 1 per process):
   runs in ``docs/data/rt-reference/interfoam/runs.csv`` (time to tau = 2.5 = stored time per
   unit t x 3.5355), and are labelled ``stored``.
 
+pfem2x writes only ``summary.json`` and ``diagnostics.csv`` unless ``--outputs scene``
+(the scene's fields, particles and interfaces every tau = 0.25 and six PNG snapshots,
+the case of the speed targets).
+
 Subsets: ``--grids 100x400 --courants 8 --of-steps co0.5 dt0.0025`` (``--of-steps none``:
 no interFoam runs). ``--pfem2x-set KEY=VALUE`` (repeatable) passes a further ``--set`` to every
 pfem2x run. Every run is stopped after ``--tlim`` s; a 2-rank pfem2x run after
@@ -206,18 +210,26 @@ def run_pfem2x(
     rep: int,
     tlim: float,
     extra: list[str] | None = None,
+    outputs: str = "off",
 ) -> dict[str, Any]:
-    """One ``pfem2x run`` of the scene; ``extra`` are further ``KEY=VALUE`` settings."""
+    """One ``pfem2x run`` of the scene; ``extra`` are further ``KEY=VALUE`` settings.
+
+    ``outputs``: ``"off"`` (only ``summary.json`` and ``diagnostics.csv``) or ``"scene"``
+    (the scene's fields, particles, interfaces and PNG snapshots as well).
+    """
     name = f"pf_{nx}x{ny}_c{courant:g}_np{np_}_r{rep}"
     out = work / name
-    cmd = [
-        sys.executable, "-m", "pfem2x", "run", "rayleigh-taylor",
-        "--set", f"mesh.cells=[{nx},{ny}]",
-        "--set", f"time.courant={courant:g}",
+    off = [
         "--set", "output.every=0",
         "--set", "output.fields=false",
         "--set", "output.particles=false",
         "--set", "output.png=false",
+    ]  # fmt: skip
+    cmd = [
+        sys.executable, "-m", "pfem2x", "run", "rayleigh-taylor",
+        "--set", f"mesh.cells=[{nx},{ny}]",
+        "--set", f"time.courant={courant:g}",
+        *(off if outputs == "off" else []),
         "--out", str(out), "--overwrite", "--quiet",
     ]  # fmt: skip
     for kv in extra or []:
@@ -228,8 +240,9 @@ def run_pfem2x(
     work.mkdir(parents=True, exist_ok=True)
     t = run_timed(cmd, work / f"{name}.log", tlim)
     rec: dict[str, Any] = {
-        "code": "pfem2x", "grid": f"{nx}x{ny}", "cells": [nx, ny], "np": np_,
-        "config": f"Courant {courant:g}", "courant": courant, "source": "measured",
+        "code": "pfem2x", "grid": f"{nx}x{ny}", "cells": [nx, ny], "np": np_, "outputs": outputs,
+        "config": f"Courant {courant:g}" + (", outputs" if outputs == "scene" else ""),
+        "courant": courant, "source": "measured",
         "wall": t["wall"], "cpu": t["cpu"], "load_before": t["load_before"],
         "load_after": t["load_after"], "rc": t["rc"],
     }  # fmt: skip
@@ -687,6 +700,12 @@ def main() -> None:
         metavar="KEY=VALUE",
         help="a further --set for every pfem2x run, e.g. mesh.diagonal=right",
     )
+    ap.add_argument(
+        "--outputs",
+        choices=["off", "scene"],
+        default="off",
+        help="pfem2x's files: off (summary and CSV only) or as the scene asks",
+    )
     ap.add_argument("--grids", nargs="+", metavar="GRID", help="only these, e.g. 100x400")
     ap.add_argument("--courants", nargs="+", type=float, help="only these pfem2x Courants")
     ap.add_argument("--of-steps", nargs="+", help="only these interFoam steps, e.g. dt0.0025")
@@ -760,11 +779,15 @@ def main() -> None:
             ]  # fmt: skip
             if np_ > 1 and serial:
                 tlim = min(tlim, 3.0 * serial[0] + 60.0)
-            reps = [run_pfem2x(nx, ny, c, np_, args.work, 0, tlim, args.pfem2x_set)]
+            reps = [run_pfem2x(nx, ny, c, np_, args.work, 0, tlim, args.pfem2x_set, args.outputs)]
             say(reps[0])
             if reps[0].get("status") == "ok" and reps[0]["wall"] < SHORT_RUN and np_ == 1:
                 for k in range(1, repeats):
-                    reps.append(run_pfem2x(nx, ny, c, np_, args.work, k, tlim, args.pfem2x_set))
+                    reps.append(
+                        run_pfem2x(
+                            nx, ny, c, np_, args.work, k, tlim, args.pfem2x_set, args.outputs
+                        )
+                    )
                     say(reps[-1])
             runs.append(median_runs(reps) if len(reps) > 1 else reps[0])
         if grid in skip:
