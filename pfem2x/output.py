@@ -280,11 +280,14 @@ class Outputs:
             pio.write_interface(self.comm, path, segs)
 
     def snapshots(self, t: float, dt: float, final: bool = False) -> None:
-        """PNG snapshots due at ``t``."""
+        """PNG snapshots due at ``t``; with ``final`` the next pending one (drawn now)."""
         for tp in self.png_schedule.pending(t, dt, final):
             name, u = self.solver.snapshot_field()
+            # a time the run did not reach (beyond t_end, or a run that stopped early) is
+            # drawn at the end under the time of the state it shows
+            shown = tp if abs(t - tp) <= 0.5 * dt else t
             pio.png_snapshot(
-                self.out / f"{name}_t{tp:08.3f}.png",
+                self.out / f"{name}_t{shown:08.3f}.png",
                 u,
                 f"{self.scene.name}  {name}  {self.solver.time_label(t)}",
                 label=name,

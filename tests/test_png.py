@@ -50,6 +50,21 @@ def test_default_png_times_are_first_and_last_without_probe(tmp_path, no_probe):
     assert no_probe == []  # 2D pictures are drawn with matplotlib
 
 
+def test_a_png_time_beyond_t_end_is_named_by_the_time_it_shows(tmp_path, no_probe):
+    raw = {
+        "scene": {"name": "t"},
+        "mesh": {"kind": "rectangle", "bounds": [[0, 0], [2, 1]], "cells": [8, 4]},
+        "effects": {"diffusion": True},
+        "transport": {"kappa": 0.01, "initial": "sin(pi*x/2)*sin(pi*y)", "boundary_value": 0},
+        "time": {"t_end": 0.2, "dt": 0.05},
+        "output": {"fields": False, "csv": False, "png_times": [0.1, 1.0]},
+    }
+    res = Simulation(validate(raw), tmp_path / "r", quiet=True).run()
+    assert res.status == "ok"
+    names = sorted(p.name for p in (tmp_path / "r").glob("*.png"))
+    assert names == ["T_t0000.100.png", "T_t0000.200.png"]
+
+
 def test_probe_runs_once_per_installation(tmp_path, monkeypatch):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     monkeypatch.delenv("PFEM2X_PNG_BACKEND", raising=False)
