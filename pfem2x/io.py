@@ -36,6 +36,7 @@ __all__ = [
     "pyvista_usable",
     "quiet_vtk",
     "write_json",
+    "write_pvtp",
     "write_vtp",
 ]
 
@@ -138,6 +139,41 @@ def _fmt(v: Any) -> Any:
     return v
 
 
+_VTK_TYPES = {
+    np.dtype(np.float32): "Float32",
+    np.dtype(np.float64): "Float64",
+    np.dtype(np.int32): "Int32",
+    np.dtype(np.int64): "Int64",
+}
+
+
+def _vtp_arrays(
+    points: np.ndarray, fields: dict[str, np.ndarray], precision: str
+) -> tuple[list[tuple[str, np.ndarray]], np.ndarray]:
+    """The point data and the positions of a cloud as written (types, 3-vectors)."""
+    if precision not in ("single", "double"):
+        raise ValueError(f"precision must be 'single' or 'double', not {precision!r}")
+    fdt = np.float32 if precision == "single" else np.float64
+
+    def padded(a: np.ndarray, dtype: Any, below: int) -> np.ndarray:
+        if a.ndim == 2 and below <= a.shape[1] < 3:  # ParaView wants 3-vectors
+            out = np.zeros((a.shape[0], 3), dtype=dtype)
+            out[:, : a.shape[1]] = a
+            return out
+        return np.ascontiguousarray(a, dtype=dtype)
+
+    data = []
+    for name, a in fields.items():
+        a = np.asarray(a)
+        data.append((name, padded(a, fdt if a.dtype.kind == "f" else np.int64, below=2)))
+    pts = np.asarray(points)
+    return data, padded(pts if pts.ndim == 2 else pts.reshape(-1, 1), fdt, below=1)
+
+
+def _ncomp(a: np.ndarray) -> int:
+    return 1 if a.ndim == 1 else a.shape[1]
+
+
 def write_vtp(
     path: str | os.PathLike,
     points: np.ndarray,
@@ -161,30 +197,20 @@ def write_vtp(
     Each array is encoded and written on its own (no copy of the whole file is
     made in memory).
     """
-    if precision not in ("single", "double"):
-        raise ValueError(f"precision must be 'single' or 'double', not {precision!r}")
-    n = points.shape[0]
-    fdt = np.float32 if precision == "single" else np.float64
+    data, pts = _vtp_arrays(points, fields, precision)
+    n = pts.shape[0]
     idt = np.int32 if n < 2**31 - 1 else np.int64
-    names = {np.dtype(np.float32): "Float32", np.dtype(np.float64): "Float64"}
-    names.update({np.dtype(np.int32): "Int32", np.dtype(np.int64): "Int64"})
 
-    def arr(fh: Any, a: np.ndarray, name: str | None, ncomp: int) -> None:
+    def arr(fh: Any, a: np.ndarray, name: str | None) -> None:
         raw = a.tobytes()
         nm = f' Name="{name}"' if name else ""
-        typ = names[a.dtype]
+        typ = _VTK_TYPES[a.dtype]
         fh.write(
-            f'<DataArray type="{typ}"{nm} NumberOfComponents="{ncomp}" format="binary">'.encode()
+            f'<DataArray type="{typ}"{nm} NumberOfComponents="{_ncomp(a)}" '
+            'format="binary">'.encode()
         )
         fh.write(base64.b64encode(np.array([len(raw)], dtype=np.uint64).tobytes() + raw))
         fh.write(b"</DataArray>\n")
-
-    def padded(a: np.ndarray, dtype: Any, below: int) -> np.ndarray:
-        if a.ndim == 2 and below <= a.shape[1] < 3:  # ParaView wants 3-vectors
-            out = np.zeros((a.shape[0], 3), dtype=dtype)
-            out[:, : a.shape[1]] = a
-            return out
-        return np.ascontiguousarray(a, dtype=dtype)
 
     with open(path, "wb") as fh:
         fh.write(b'<?xml version="1.0"?>\n')
@@ -196,42 +222,82 @@ def write_vtp(
             f'<PolyData><Piece NumberOfPoints="{n}" NumberOfVerts="{n}" NumberOfLines="0" '
             'NumberOfStrips="0" NumberOfPolys="0">\n<PointData>\n'.encode()
         )
-        for name, a in fields.items():
-            a = np.asarray(a)
-            a = padded(a, fdt if a.dtype.kind == "f" else np.int64, below=2)
-            arr(fh, a, name, 1 if a.ndim == 1 else a.shape[1])
+        for name, a in data:
+            arr(fh, a, name)
         fh.write(b"</PointData>\n<Points>\n")
-        arr(fh, padded(np.asarray(points).reshape(n, -1), fdt, below=1), None, 3)
+        arr(fh, pts, None)
         fh.write(b"</Points>\n<Verts>\n")
-        arr(fh, np.arange(n, dtype=idt), "connectivity", 1)
-        arr(fh, np.arange(1, n + 1, dtype=idt), "offsets", 1)
+        arr(fh, np.arange(n, dtype=idt), "connectivity")
+        arr(fh, np.arange(1, n + 1, dtype=idt), "offsets")
         fh.write(b"</Verts>\n</Piece></PolyData>\n</VTKFile>\n")
 
 
+def write_pvtp(
+    path: str | os.PathLike,
+    pieces: list[str],
+    points: np.ndarray,
+    fields: dict[str, np.ndarray],
+    precision: str = "double",
+) -> None:
+    """Write the parallel header (``.pvtp``) of ``.vtp`` pieces written by :func:`write_vtp`.
+
+    ``pieces`` are the pieces' paths relative to ``path``'s folder; ``points`` and
+    ``fields`` are any piece's arrays (of any length, also none: only their types
+    and components are declared).
+    """
+    data, pts = _vtp_arrays(points, fields, precision)
+
+    def decl(a: np.ndarray, name: str | None) -> str:
+        nm = f' Name="{name}"' if name else ""
+        return f'<PDataArray type="{_VTK_TYPES[a.dtype]}"{nm} NumberOfComponents="{_ncomp(a)}"/>\n'
+
+    text = (
+        '<?xml version="1.0"?>\n'
+        '<VTKFile type="PPolyData" version="1.0" byte_order="LittleEndian" '
+        'header_type="UInt64">\n<PPolyData GhostLevel="0">\n<PPointData>\n'
+        + "".join(decl(a, name) for name, a in data)
+        + "</PPointData>\n<PPoints>\n"
+        + decl(pts, None)
+        + "</PPoints>\n"
+        + "".join(f'<Piece Source="{p}"/>\n' for p in pieces)
+        + "</PPolyData>\n</VTKFile>\n"
+    )
+    Path(path).write_text(text)
+
+
 class ParticleWriter:
-    """A ``particles.pvd`` collection of ``particles/step_NNNNN.vtp`` files (gathered to rank 0)."""
+    """A ``particles.pvd`` collection of the particle cloud over time.
+
+    One process writes ``particles/step_NNNNNN.vtp``; on several ranks each rank
+    writes its own particles (``particles/step_NNNNNN_rR.vtp``, nothing is
+    gathered) and rank 0 the ``particles/step_NNNNNN.pvtp`` that joins them.
+    """
 
     def __init__(self, comm: MPI.Comm, folder: str | os.PathLike, precision: str = "double"):
         self.comm = comm
         self.folder = Path(folder)
         self.precision = precision
         self.entries: list[tuple[float, str]] = []
-        if comm.rank == 0:
-            (self.folder / "particles").mkdir(parents=True, exist_ok=True)
+        (self.folder / "particles").mkdir(parents=True, exist_ok=True)
 
     def write(
         self, positions: np.ndarray, fields: dict[str, np.ndarray], t: float, step: int
     ) -> None:
-        """Gather the cloud to rank 0 and write one time level."""
-        allp = self.comm.gather(positions, root=0)
-        allf = self.comm.gather(fields, root=0)
-        if self.comm.rank != 0:
-            return
-        pos = np.concatenate(allp) if allp else positions
-        flds = {k: np.concatenate([f[k] for f in allf]) for k in fields}
-        rel = f"particles/step_{step:06d}.vtp"
-        write_vtp(self.folder / rel, pos, flds, self.precision)
+        """Write one time level (collective)."""
+        comm, base = self.comm, f"step_{step:06d}"
+        if comm.size == 1:
+            rel = f"particles/{base}.vtp"
+            write_vtp(self.folder / rel, positions, fields, self.precision)
+        else:
+            piece = f"{base}_r{comm.rank}.vtp"
+            write_vtp(self.folder / "particles" / piece, positions, fields, self.precision)
+            rel = f"particles/{base}.pvtp"
+            if comm.rank == 0:
+                pieces = [f"{base}_r{r}.vtp" for r in range(comm.size)]
+                write_pvtp(self.folder / rel, pieces, positions, fields, self.precision)
         self.entries.append((t, rel))
+        if comm.rank != 0:
+            return
         body = "".join(f'<DataSet timestep="{tt:.10g}" file="{r}"/>\n' for tt, r in self.entries)
         atomic_write_text(
             self.folder / "particles.pvd",

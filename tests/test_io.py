@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from pfem2x.compat import MPI
-from pfem2x.io import chain_segments, read_interface, write_interface, write_vtp
+from pfem2x.io import chain_segments, read_interface, write_interface, write_pvtp, write_vtp
 from pfem2x.runner import Simulation
 from pfem2x.scene import load_scene
 
@@ -79,6 +79,61 @@ def test_vtp_round_trip(tmp_path, precision):
     assert np.array_equal(got["offsets"][1].ravel(), np.arange(1, n + 1))
     with pytest.raises(ValueError, match="precision"):
         write_vtp(tmp_path / "q.vtp", pos, {}, "half")
+
+
+def _pieces(pvtp):
+    """The declared arrays (name -> type) and the pieces' decoded arrays of a .pvtp file."""
+    import xml.etree.ElementTree as ET
+
+    root = ET.parse(pvtp).getroot()
+    decl = {a.get("Name") or "Points": a.get("type") for a in root.iter("PDataArray")}
+    return decl, [_read_vtp(pvtp.parent / p.get("Source")) for p in root.iter("Piece")]
+
+
+def test_pvtp_declares_its_pieces_arrays(tmp_path):
+    rng = np.random.default_rng(3)
+    pieces = []
+    for r, n in enumerate([5, 0, 7]):  # an empty piece as on a rank without particles
+        pos, u = rng.random((n, 2)), rng.random((n, 2))
+        write_vtp(tmp_path / f"p_r{r}.vtp", pos, {"u": u, "phase": u[:, 0]}, "single")
+        pieces.append((pos, u))
+    write_pvtp(
+        tmp_path / "p.pvtp",
+        ["p_r0.vtp", "p_r1.vtp", "p_r2.vtp"],
+        pos,
+        {"u": u, "phase": u[:, 0]},
+        "single",
+    )
+    decl, got = _pieces(tmp_path / "p.pvtp")
+    assert decl == {"u": "Float32", "phase": "Float32", "Points": "Float32"}
+    for g, (pos, u) in zip(got, pieces, strict=True):
+        assert {k: v[0] for k, v in g.items() if k in decl} == decl
+        assert np.abs(g["Points"][1][:, :2] - pos).max(initial=0.0) <= 1e-7
+        assert np.abs(g["u"][1][:, :2] - u).max(initial=0.0) <= 1e-7
+
+
+@pytest.mark.mpi
+def test_particle_files_of_a_parallel_run_are_one_piece_per_rank(shared_tmp):
+    sc = load_scene("rayleigh-taylor", ["output.png=false"], "small")
+    sim = Simulation(sc, shared_tmp / "rt", quiet=True)
+    res = sim.run()
+    comm = MPI.COMM_WORLD
+    counts = [int(c) for c in comm.allgather(sim.solver.cloud().x.shape[0])]
+    found = None
+    if comm.rank == 0:  # read on rank 0, checked on every rank
+        out = shared_tmp / "rt"
+        pvd = (out / "particles.pvd").read_text()
+        ext = ".pvtp" if comm.size > 1 else ".vtp"
+        files = sorted((out / "particles").glob(f"*{ext}"))
+        if comm.size > 1:
+            decl, got = _pieces(files[-1])
+            sizes = [g["Points"][1].shape[0] for g in got]
+        else:
+            sizes = [_read_vtp(files[-1])["Points"][1].shape[0]]
+        found = (res.status, f'file="particles/{files[-1].name}"' in pvd, sizes)
+    status, listed, sizes = comm.bcast(found, root=0)
+    assert status == "ok" and listed
+    assert sizes == counts  # each rank's particles in its own piece, none gathered
 
 
 @pytest.mark.mpi
