@@ -177,9 +177,11 @@ def exercise_particles() -> None:
 
 
 def _exercise_interface(points: Any) -> None:
-    """The flow's compiled interface geometry (balanced gravity, cut-cell densities) once."""
+    """The flow's compiled kernels once: interface geometry (balanced gravity, cut-cell
+    densities) and the per-cell velocity measures of the diagnostics."""
     import numpy as np  # noqa: PLC0415
 
+    from pfem2x.physics.flow._kernels import cell_velocity_kernel  # noqa: PLC0415
     from pfem2x.physics.flow.balanced import closest_points  # noqa: PLC0415
     from pfem2x.physics.flow.interface import positive_fraction, segment_distance  # noqa: PLC0415
 
@@ -187,6 +189,8 @@ def _exercise_interface(points: Any) -> None:
     closest_points(points, seg)
     positive_fraction(np.array([[1.0, -1.0, 0.5]]))
     segment_distance(points, seg, cap=0.25)
+    dofs = np.array([[0, 1, 2]], dtype=np.int32)
+    cell_velocity_kernel(np.zeros((3, 2)), dofs, np.zeros((1, 3, 2)))
 
 
 def warm_up(say: Callable[[str], Any] | None = None, comm: Any = None) -> float:

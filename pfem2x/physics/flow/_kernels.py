@@ -17,6 +17,7 @@ from numba import njit
 from pfem2x.particles._kernels import counting_sort
 
 __all__ = [
+    "cell_velocity_kernel",
     "circle_distance_kernel",
     "circle_fit_equations",
     "closest_pairs_within_kernel",
@@ -473,3 +474,51 @@ def circle_distance_kernel(s, eta, A, B, D):  # pragma: no cover - compiled
     for k in range(s.shape[0]):
         out[k] = _circle_distance(s[k], eta[k], A[k], B[k], D[k])[0]
     return out
+
+
+@njit(cache=True, error_model="numpy")
+def cell_velocity_kernel(u, dofs, gradlam):  # pragma: no cover - compiled
+    """Per cell of a P1 velocity: div u, max vertex speed and the two sums of the energy.
+
+    ``u`` ``(nodes, gdim)``, ``dofs`` ``(cells, nv)``, ``gradlam`` ``(cells, nv, gdim)``
+    (the barycentric gradients). Returns ``div`` (sum over the components ``j`` of
+    the sums over the vertices ``k`` of ``u_kj g_kj``: numpy's einsum order for
+    triangles on x86-64), ``speed`` (the largest ``|u_k|``, NaN if any is NaN),
+    ``sq`` (``sum_kj u_kj^2`` in that order) and ``tot`` (``sum_j (sum_k u_kj)^2``).
+    """
+    n, nv = dofs.shape
+    gdim = u.shape[1]
+    div = np.empty(n)
+    speed = np.empty(n)
+    sq = np.empty(n)
+    tot = np.empty(n)
+    for c in range(n):
+        d = 0.0
+        for j in range(gdim):
+            a = 0.0
+            for k in range(nv):
+                a += u[dofs[c, k], j] * gradlam[c, k, j]
+            d += a
+        s = 0.0
+        smax = 0.0
+        for k in range(nv):
+            i = dofs[c, k]
+            m = 0.0
+            for j in range(gdim):
+                v = u[i, j]
+                m += v * v
+                s += v * v
+            r = np.sqrt(m)
+            if k == 0 or r > smax or r != r:
+                smax = r
+        t = 0.0
+        for j in range(gdim):
+            a = u[dofs[c, 0], j]
+            for k in range(1, nv):
+                a += u[dofs[c, k], j]
+            t += a * a
+        div[c] = d
+        speed[c] = smax
+        sq[c] = s
+        tot[c] = t
+    return div, speed, sq, tot
