@@ -294,7 +294,8 @@ class ParticleWriter:
             rel = f"particles/{base}.pvtp"
             if comm.rank == 0:
                 pieces = [f"{base}_r{r}.vtp" for r in range(comm.size)]
-                write_pvtp(self.folder / rel, pieces, positions, fields, self.precision)
+                empty = {k: np.asarray(v)[:0] for k, v in fields.items()}  # types only
+                write_pvtp(self.folder / rel, pieces, positions[:0], empty, self.precision)
         self.entries.append((t, rel))
         if comm.rank != 0:
             return

@@ -34,16 +34,21 @@ def test_no_png_when_none_is_asked_for(tmp_path, no_probe, over):
     assert no_probe == []
 
 
-def test_default_png_times_are_first_and_last_without_probe(tmp_path, no_probe):
-    raw = {  # no output.png_times: t = 0 and t_end
+def _diffusion_run(out, **output):
+    """A 2D diffusion scene to t = 0.2 (dt 0.05) with the PNG settings ``output``."""
+    raw = {
         "scene": {"name": "t"},
         "mesh": {"kind": "rectangle", "bounds": [[0, 0], [2, 1]], "cells": [8, 4]},
         "effects": {"diffusion": True},
         "transport": {"kappa": 0.01, "initial": "sin(pi*x/2)*sin(pi*y)", "boundary_value": 0},
         "time": {"t_end": 0.2, "dt": 0.05},
-        "output": {"fields": False, "csv": False},
+        "output": {"fields": False, "csv": False, **output},
     }
-    res = Simulation(validate(raw), tmp_path / "r", quiet=True).run()
+    return Simulation(validate(raw), out, quiet=True).run()
+
+
+def test_default_png_times_are_first_and_last_without_probe(tmp_path, no_probe):
+    res = _diffusion_run(tmp_path / "r")  # no output.png_times: t = 0 and t_end
     assert res.status == "ok"
     names = sorted(p.name for p in (tmp_path / "r").glob("*.png"))
     assert names == ["T_t0000.000.png", "T_t0000.200.png"]
@@ -51,15 +56,7 @@ def test_default_png_times_are_first_and_last_without_probe(tmp_path, no_probe):
 
 
 def test_a_png_time_beyond_t_end_is_named_by_the_time_it_shows(tmp_path, no_probe):
-    raw = {
-        "scene": {"name": "t"},
-        "mesh": {"kind": "rectangle", "bounds": [[0, 0], [2, 1]], "cells": [8, 4]},
-        "effects": {"diffusion": True},
-        "transport": {"kappa": 0.01, "initial": "sin(pi*x/2)*sin(pi*y)", "boundary_value": 0},
-        "time": {"t_end": 0.2, "dt": 0.05},
-        "output": {"fields": False, "csv": False, "png_times": [0.1, 1.0]},
-    }
-    res = Simulation(validate(raw), tmp_path / "r", quiet=True).run()
+    res = _diffusion_run(tmp_path / "r", png_times=[0.1, 1.0])
     assert res.status == "ok"
     names = sorted(p.name for p in (tmp_path / "r").glob("*.png"))
     assert names == ["T_t0000.100.png", "T_t0000.200.png"]

@@ -505,9 +505,9 @@ def cell_velocity_kernel(u, dofs, gradlam):  # pragma: no cover - compiled
             i = dofs[c, k]
             m = 0.0
             for j in range(gdim):
-                v = u[i, j]
-                m += v * v
-                s += v * v
+                vv = u[i, j] * u[i, j]
+                m += vv
+                s += vv
             r = np.sqrt(m)
             if k == 0 or r > smax or r != r:
                 smax = r
