@@ -86,13 +86,9 @@ WALL_BC = {"noslip": "type noSlip;", "slip": "type slip;"}
 
 
 @dataclass(frozen=True)
-class Bubble:
+class Bubble(interfoam_case.Box):
     """The rising-bubble problem as the scene states it."""
 
-    x0: float
-    x1: float
-    y0: float
-    y1: float
     R: float
     xc: float
     yc: float
@@ -185,56 +181,25 @@ def initial_alpha(pb: Bubble, n: int) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- writing
-def _boundary(pb: Bubble, entry: dict[str, str]) -> str:
-    walls = "".join(f"    {w} {{ {entry[w]} }}\n" for w in ("left", "right", "bottom", "top"))
-    return f"boundaryField\n{{\n{walls}    frontAndBack {{ type empty; }}\n}}\n"
-
-
 def write_case(case: Path, spec: BubbleSpec, pb: Bubble | None = None) -> None:
     """Write a complete interFoam case for ``spec`` into the folder ``case``."""
     pb = pb or bubble_from_scene()
     for side in ("left", "right", "bottom", "top"):
         if getattr(pb, side) not in WALL_BC:
             raise ValueError(f"flow.{side} = {getattr(pb, side)!r}: only noslip and slip")
-    foam_file = interfoam_case._foam_file
     case.mkdir(parents=True, exist_ok=True)
     nx, ny = spec.n, 2 * spec.n
     end = math.ceil(spec.t_end / spec.write_every - 1e-9) * spec.write_every
     interfoam_case.write_block_mesh(case, pb, nx, ny)
     max_dt = spec.max_dt if spec.max_dt is not None else spec.write_every
     dy = (pb.y1 - pb.y0) / ny
-    foam_file(case / "system/controlDict", "dictionary", "controlDict", f"""
-application interFoam;
-startFrom startTime;
-startTime 0;
-stopAt endTime;
-endTime {end:.10g};
-deltaT {0.1 * dy:g};
-adjustTimeStep yes;
-maxCo {spec.max_co:g};
-maxAlphaCo {spec.max_co:g};
-maxDeltaT {max_dt:g};
-writeControl adjustableRunTime;
-writeInterval {end:.10g};
-purgeWrite 0;
-writeFormat ascii;
-writePrecision 8;
-writeCompression on;
-timeFormat general;
-timePrecision 8;
-runTimeModifiable no;
-functions
-{{
-    bubbleHistory
-    {{
-        type writeObjects;
-        libs ("libutilityFunctionObjects.so");
-        objects (alpha.bubble U);
-        writeControl adjustableRunTime;
-        writeInterval {spec.write_every:g};
-    }}
+    history = interfoam_case.write_objects(
+        "bubbleHistory", "alpha.bubble U", "adjustableRunTime", spec.write_every
+    )
+    step = interfoam_case.adaptive_step(0.1 * dy, spec.max_co, max_dt)
+    interfoam_case.write_control(case, end, step, history + """\
     bubbleVolume
-    {{
+    {
         type volFieldValue;
         libs ("libfieldFunctionObjects.so");
         fields (alpha.bubble);
@@ -244,9 +209,9 @@ functions
         log false;
         writeControl timeStep;
         writeInterval 1;
-    }}
+    }
     bubbleVelocity
-    {{
+    {
         type volFieldValue;
         libs ("libfieldFunctionObjects.so");
         fields (U);
@@ -257,40 +222,15 @@ functions
         log false;
         writeControl timeStep;
         writeInterval 1;
-    }}
-}}
+    }
 """)  # fmt: skip
     interfoam_case.write_numerics(case, "bubble")
-    nu_b, nu_o = pb.mu_bubble / pb.rho_bubble, pb.mu_outer / pb.rho_outer
-    foam_file(case / "constant/transportProperties", "dictionary", "transportProperties", f"""
-phases (bubble outer);
-bubble {{ transportModel Newtonian; nu {nu_b:.12g}; rho {pb.rho_bubble:g}; }}
-outer {{ transportModel Newtonian; nu {nu_o:.12g}; rho {pb.rho_outer:g}; }}
-sigma {pb.sigma:.12g};
-""")  # fmt: skip
-    foam_file(case / "constant/g", "uniformDimensionedVectorField", "g", f"""
-dimensions [0 1 -2 0 0 0 0];
-value (0 {-pb.g:.12g} 0);
-""")  # fmt: skip
-    foam_file(
-        case / "constant/turbulenceProperties", "dictionary", "turbulenceProperties",
-        "simulationType laminar;",
+    interfoam_case.write_fluids(
+        case, ("bubble", pb.rho_bubble, pb.mu_bubble), ("outer", pb.rho_outer, pb.mu_outer),
+        pb.g, pb.sigma,
     )  # fmt: skip
-    sides = ("left", "right", "bottom", "top")
-    u_bc = {w: WALL_BC[getattr(pb, w)] for w in sides}
-    foam_file(case / "0/U", "volVectorField", "U",
-              "dimensions [0 1 -1 0 0 0 0];\ninternalField uniform (0 0 0);\n"
-              + _boundary(pb, u_bc))  # fmt: skip
-    p_bc = dict.fromkeys(sides, "type fixedFluxPressure; value uniform 0;")
-    foam_file(case / "0/p_rgh", "volScalarField", "p_rgh",
-              "dimensions [1 -1 -2 0 0 0 0];\ninternalField uniform 0;\n"
-              + _boundary(pb, p_bc))  # fmt: skip
-    alpha = initial_alpha(pb, spec.n)
-    values = "\n".join(f"{a:.12g}" for a in alpha)
-    foam_file(case / "0/alpha.bubble", "volScalarField", "alpha.bubble",
-              "dimensions [0 0 0 0 0 0 0];\n"
-              f"internalField nonuniform List<scalar>\n{alpha.size}\n(\n{values}\n)\n;\n"
-              + _boundary(pb, dict.fromkeys(sides, "type zeroGradient;")))  # fmt: skip
+    u_bc = {w: WALL_BC[getattr(pb, w)] for w in interfoam_case.SIDES}
+    interfoam_case.write_fields(case, "bubble", initial_alpha(pb, spec.n), u_bc)
     (case / "case.txt").write_text(repr(asdict(spec) | asdict(pb)) + "\n")
 
 
@@ -362,24 +302,13 @@ def geometry(pb: Bubble, n: int, alpha: np.ndarray, u: np.ndarray) -> dict[str, 
     return {"centroid_y": yc, "rise_velocity": uc, "circularity": circ, "area": area}
 
 
-def time_dirs(case: Path) -> list[tuple[float, Path]]:
-    """The numbered time folders of a case, sorted by time."""
-    out = []
-    for d in case.iterdir():
-        try:
-            out.append((float(d.name), d))
-        except ValueError:
-            continue
-    return sorted(out)
-
-
 def series(case: Path) -> np.ndarray:
     """Rows (t, centroid_y, rise_velocity, circularity, area) of every written time."""
     info = read_case_txt(case)
     pb = Bubble(**{k: info[k] for k in Bubble.__dataclass_fields__})
     n = int(info["n"])
     rows = []
-    for t, d in time_dirs(case):
+    for t, d in interfoam_case.time_dirs(case):
         a = read_internal_alpha(d / "alpha.bubble")
         u = read_internal_vector(d / "U", 2 * n * n)
         if a is None or u is None or a.size != 2 * n * n:
@@ -614,10 +543,7 @@ def main(argv: list[str] | None = None) -> None:
     bn.add_argument("--tlim", type=float, default=1800.0, help="stop interFoam after (s)")
     bn.add_argument("--keep", action="store_true", help="keep the time folders of the cases")
     a = ap.parse_args(argv)
-
-    def fail(msg: str) -> None:
-        print(f"error: {msg}", file=sys.stderr)
-        raise SystemExit(2)
+    fail = interfoam_case.fail
 
     def spec_of(n: int) -> BubbleSpec:
         if n < 4:
@@ -641,10 +567,7 @@ def main(argv: list[str] | None = None) -> None:
         fail(f"{interfoam_case.FOAM_BASHRC}: OpenFOAM not found (apt-get install openfoam)")
     if a.cmd == "make":
         spec = spec_of(a.n)
-        if a.case.exists() and any(a.case.iterdir()):
-            if not a.overwrite:
-                fail(f"{a.case}: exists and is not empty (use --overwrite)")
-            shutil.rmtree(a.case)
+        interfoam_case.fresh_case(a.case, a.overwrite)
         write_case(a.case, spec)
         print(f"wrote {a.case}")
         return
@@ -682,7 +605,7 @@ def main(argv: list[str] | None = None) -> None:
               f"CPU {res.get('cpu', math.nan):.1f} s, load {load0[0]} -> {load1[0]}",
               flush=True)  # fmt: skip
         if not a.keep:
-            for _t, d in time_dirs(case):
+            for _t, d in interfoam_case.time_dirs(case):
                 if d.name != "0":
                     shutil.rmtree(d)
     cmd = " ".join(["python benchmarks/interfoam_bubble.py", *(argv or sys.argv[1:])])

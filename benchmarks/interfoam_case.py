@@ -48,7 +48,7 @@ import time
 import tomllib
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -60,13 +60,19 @@ TIP_TAUS = (1.0, 1.5, 2.0, 2.25, 2.5)
 
 
 @dataclass(frozen=True)
-class Problem:
-    """The Rayleigh-Taylor problem as the scene states it."""
+class Box:
+    """The rectangle [x0, x1] x [y0, y1] of a scene's mesh."""
 
     x0: float
     x1: float
     y0: float
     y1: float
+
+
+@dataclass(frozen=True)
+class Problem(Box):
+    """The Rayleigh-Taylor problem as the scene states it."""
+
     d: float
     g: float
     rho_heavy: float
@@ -138,11 +144,69 @@ def initial_alpha(pb: Problem, nx: int, ny: int, sign: float, order: int = 16) -
     return (0.5 * h @ wi).ravel()
 
 
-def _boundary(entry: str, sides: str = "slip") -> str:
-    side = "type symmetryPlane;" if sides == "symmetry" else entry
-    ents = {"left": side, "right": side, "bottom": entry, "top": entry}
-    walls = "".join(f"    {w} {{ {e} }}\n" for w, e in ents.items())
+SIDES = ("left", "right", "bottom", "top")
+#: p_rgh and alpha on every wall
+P_RGH_WALL = "type fixedFluxPressure; value uniform 0;"
+ALPHA_WALL = "type zeroGradient;"
+
+
+def boundary_field(entries: dict[str, str]) -> str:
+    """A ``boundaryField`` block: ``{patch: entry}`` for the sides, ``empty`` front and back."""
+    walls = "".join(f"    {w} {{ {e} }}\n" for w, e in entries.items())
     return f"boundaryField\n{{\n{walls}    frontAndBack {{ type empty; }}\n}}\n"
+
+
+def _sides(entry: str, sides: str = "slip") -> dict[str, str]:
+    side = "type symmetryPlane;" if sides == "symmetry" else entry
+    return {"left": side, "right": side, "bottom": entry, "top": entry}
+
+
+def adaptive_step(dt0: float, max_co: float, max_dt: float) -> str:
+    """controlDict lines of a step adapted to ``maxCo = maxAlphaCo = max_co``."""
+    return (
+        f"deltaT {dt0:g};\nadjustTimeStep yes;\nmaxCo {max_co:g};\n"
+        f"maxAlphaCo {max_co:g};\nmaxDeltaT {max_dt:g};\n"
+        "writeControl adjustableRunTime;\n"
+    )
+
+
+def write_objects(name: str, objects: str, control: str, every: float) -> str:
+    """A ``writeObjects`` function object: ``objects`` written every ``every``."""
+    return f"""    {name}
+    {{
+        type writeObjects;
+        libs ("libutilityFunctionObjects.so");
+        objects ({objects});
+        writeControl {control};
+        writeInterval {every:g};
+    }}
+"""
+
+
+def write_control(
+    case: Path, end: float, step: str, functions: str, time_precision: int = 8
+) -> None:
+    """``system/controlDict`` of interFoam to ``end``: the ``step`` lines (time step and
+    ``writeControl``), fields written at the end only, the function objects
+    ``functions``."""
+    _foam_file(case / "system/controlDict", "dictionary", "controlDict", f"""
+application interFoam;
+startFrom startTime;
+startTime 0;
+stopAt endTime;
+endTime {end:.10g};
+{step}writeInterval {end:.10g};
+purgeWrite 0;
+writeFormat ascii;
+writePrecision 8;
+writeCompression on;
+timeFormat general;
+timePrecision {time_precision};
+runTimeModifiable no;
+functions
+{{
+{functions}}}
+""")  # fmt: skip
 
 
 def write_case(case: Path, spec: CaseSpec, pb: Problem | None = None) -> None:
@@ -158,11 +222,7 @@ def write_case(case: Path, spec: CaseSpec, pb: Problem | None = None) -> None:
     write_block_mesh(case, pb, nx, ny, "symmetryPlane" if spec.sides == "symmetry" else "wall")
     if spec.max_co is not None:
         dy = (pb.y1 - pb.y0) / ny
-        step = (
-            f"deltaT {0.1 * dy:g};\nadjustTimeStep yes;\nmaxCo {spec.max_co:g};\n"
-            f"maxAlphaCo {spec.max_co:g};\nmaxDeltaT {spec.write_every:g};\n"
-            "writeControl adjustableRunTime;\n"
-        )
+        step = adaptive_step(0.1 * dy, spec.max_co, spec.write_every)
         control = "adjustableRunTime"
     else:
         # interFoam reads maxCo and maxAlphaCo whether the step adapts or not
@@ -171,65 +231,62 @@ def write_case(case: Path, spec: CaseSpec, pb: Problem | None = None) -> None:
             "writeControl runTime;\n"
         )
         control = "runTime"
-    _foam_file(case / "system/controlDict", "dictionary", "controlDict", f"""
-application interFoam;
-startFrom startTime;
-startTime 0;
-stopAt endTime;
-endTime {end:.10g};
-{step}writeInterval {end:.10g};
-purgeWrite 0;
-writeFormat ascii;
-writePrecision 8;
-writeCompression on;
-timeFormat general;
-timePrecision 8;
-runTimeModifiable no;
-functions
-{{
-    alphaHistory
-    {{
-        type writeObjects;
-        libs ("libutilityFunctionObjects.so");
-        objects (alpha.heavy);
-        writeControl {control};
-        writeInterval {spec.write_every:g};
-    }}
-}}
-""")  # fmt: skip
+    write_control(
+        case, end, step, write_objects("alphaHistory", "alpha.heavy", control, spec.write_every)
+    )
     write_numerics(case, "heavy")
     _foam_file(case / "system/decomposeParDict", "dictionary", "decomposeParDict", f"""
 numberOfSubdomains {spec.nproc};
 method simple;
 coeffs {{ n (1 {spec.nproc} 1); }}
 """)  # fmt: skip
-    _foam_file(case / "constant/transportProperties", "dictionary", "transportProperties", f"""
-phases (heavy light);
-heavy {{ transportModel Newtonian; nu {pb.mu / pb.rho_heavy:.12g}; rho {pb.rho_heavy:g}; }}
-light {{ transportModel Newtonian; nu {pb.mu / pb.rho_light:.12g}; rho {pb.rho_light:g}; }}
-sigma 0;
-""")  # fmt: skip
-    _foam_file(case / "constant/g", "uniformDimensionedVectorField", "g", f"""
-dimensions [0 1 -2 0 0 0 0];
-value (0 {-pb.g:g} 0);
-""")  # fmt: skip
-    _foam_file(
-        case / "constant/turbulenceProperties", "dictionary", "turbulenceProperties",
-        "simulationType laminar;",
+    write_fluids(case, ("heavy", pb.rho_heavy, pb.mu), ("light", pb.rho_light, pb.mu), pb.g)
+    write_fields(
+        case, "heavy", initial_alpha(pb, nx, ny, spec.sign),
+        _sides("type slip;", spec.sides), _sides(P_RGH_WALL, spec.sides),
+        _sides(ALPHA_WALL, spec.sides), digits=10,
     )  # fmt: skip
+    (case / "case.txt").write_text(repr(asdict(spec) | asdict(pb)) + "\n")
+
+
+def write_fluids(
+    case: Path, phase1: tuple[str, float, float], phase2: tuple[str, float, float],
+    g: float, sigma: float = 0.0,
+) -> None:  # fmt: skip
+    """``constant/``: two Newtonian phases ``(name, rho, mu)`` (phase 1 is ``alpha``'s),
+    gravity ``(0, -g, 0)``, laminar, surface tension ``sigma``."""
+    fluids = "".join(
+        f"{n} {{ transportModel Newtonian; nu {mu / rho:.12g}; rho {rho:g}; }}\n"
+        for n, rho, mu in (phase1, phase2)
+    )
+    _foam_file(case / "constant/transportProperties", "dictionary", "transportProperties",
+               f"phases ({phase1[0]} {phase2[0]});\n{fluids}sigma {sigma:.12g};")  # fmt: skip
+    _foam_file(case / "constant/g", "uniformDimensionedVectorField", "g",
+               f"dimensions [0 1 -2 0 0 0 0];\nvalue (0 {-g:.12g} 0);")  # fmt: skip
+    _foam_file(case / "constant/turbulenceProperties", "dictionary", "turbulenceProperties",
+               "simulationType laminar;")  # fmt: skip
+
+
+def write_fields(
+    case: Path, phase: str, alpha: np.ndarray, u_bc: dict[str, str],
+    p_bc: dict[str, str] | None = None, alpha_bc: dict[str, str] | None = None,
+    digits: int = 12,
+) -> None:  # fmt: skip
+    """``0/``: ``U`` at rest, ``p_rgh`` zero and ``alpha.<phase>`` (one value per cell),
+    each with its boundary entries ``{patch: entry}`` (default: walls)."""
+    p_bc = p_bc or dict.fromkeys(SIDES, P_RGH_WALL)
+    alpha_bc = alpha_bc or dict.fromkeys(SIDES, ALPHA_WALL)
     _foam_file(case / "0/U", "volVectorField", "U",
                "dimensions [0 1 -1 0 0 0 0];\ninternalField uniform (0 0 0);\n"
-               + _boundary("type slip;", spec.sides))  # fmt: skip
+               + boundary_field(u_bc))  # fmt: skip
     _foam_file(case / "0/p_rgh", "volScalarField", "p_rgh",
                "dimensions [1 -1 -2 0 0 0 0];\ninternalField uniform 0;\n"
-               + _boundary("type fixedFluxPressure; value uniform 0;", spec.sides))  # fmt: skip
-    alpha = initial_alpha(pb, nx, ny, spec.sign)
-    values = "\n".join(f"{a:.10g}" for a in alpha)
-    _foam_file(case / "0/alpha.heavy", "volScalarField", "alpha.heavy",
+               + boundary_field(p_bc))  # fmt: skip
+    values = "\n".join(f"{v:.{digits}g}" for v in alpha)
+    _foam_file(case / f"0/alpha.{phase}", "volScalarField", f"alpha.{phase}",
                "dimensions [0 0 0 0 0 0 0];\n"
                f"internalField nonuniform List<scalar>\n{alpha.size}\n(\n{values}\n)\n;\n"
-               + _boundary("type zeroGradient;", spec.sides))  # fmt: skip
-    (case / "case.txt").write_text(repr(asdict(spec) | asdict(pb)) + "\n")
+               + boundary_field(alpha_bc))  # fmt: skip
 
 
 # --------------------------------------------------------------------------- running
@@ -374,20 +431,25 @@ def iso_extent(alpha: np.ndarray, nx: int, ny: int, y0: float, y1: float) -> tup
     return float(y.min()), float(y.max())
 
 
+def time_dirs(case: Path) -> list[tuple[float, Path]]:
+    """The numbered time folders of a case, sorted by time."""
+    out = []
+    for d in case.iterdir():
+        try:
+            out.append((float(d.name), d))
+        except ValueError:
+            continue
+    return sorted(out)
+
+
 def case_tips(case: Path) -> np.ndarray:
     """Rows (t, tau, y_spike, y_bubble, volume) for every written ``alpha.heavy`` of a case."""
     info = eval_case_txt(case)
     pb = Problem(**{k: info[k] for k in Problem.__dataclass_fields__})
     nx, ny = int(info["nx"]), int(info["ny"])
     cell = (pb.x1 - pb.x0) / nx * (pb.y1 - pb.y0) / ny
-    times = []
-    for d in case.iterdir():
-        try:
-            times.append((float(d.name), d))
-        except ValueError:
-            continue
     rows = []
-    for t, d in sorted(times):
+    for t, d in time_dirs(case):
         a = read_internal_scalar(d / "alpha.heavy")
         if a is None or a.size != nx * ny:
             continue
@@ -423,6 +485,20 @@ def tips_at(rows: np.ndarray, taus: tuple[float, ...] = TIP_TAUS) -> dict[str, l
 
 
 # --------------------------------------------------------------------------- command line
+def fail(msg: str) -> NoReturn:
+    """One ``error:`` line on stderr, exit code 2."""
+    print(f"error: {msg}", file=sys.stderr)
+    raise SystemExit(2)
+
+
+def fresh_case(case: Path, overwrite: bool) -> None:
+    """Make room for a new case in ``case``: fail if it holds files, unless ``overwrite``."""
+    if case.exists() and any(case.iterdir()):
+        if not overwrite:
+            fail(f"{case}: exists and is not empty (use --overwrite)")
+        shutil.rmtree(case)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Command line: ``make``, ``run`` and ``tips`` (see the module docstring)."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -448,18 +524,10 @@ def main(argv: list[str] | None = None) -> None:
     tp.add_argument("case", type=Path)
     tp.add_argument("--quiet", action="store_true")
     a = ap.parse_args(argv)
-
-    def fail(msg: str) -> None:
-        print(f"error: {msg}", file=sys.stderr)
-        raise SystemExit(2)
-
     if a.cmd == "make":
         if a.nx < 2 or a.ny < 2:
             fail("--nx/--ny: at least 2 cells")
-        if a.case.exists() and any(a.case.iterdir()):
-            if not a.overwrite:
-                fail(f"{a.case}: exists and is not empty (use --overwrite)")
-            shutil.rmtree(a.case)
+        fresh_case(a.case, a.overwrite)
         spec = CaseSpec(
             a.nx, a.ny, a.max_co, a.dt, a.tau_end, a.write_every, a.sign, a.nproc, a.sides
         )

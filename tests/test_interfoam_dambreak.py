@@ -1,0 +1,78 @@
+"""The dam-break interFoam case generator (``benchmarks/interfoam_dambreak.py``), no OpenFOAM."""
+
+import re
+
+import numpy as np
+import pytest
+
+from pfem2x.cases import MARTIN_MOYCE_FRONT, MARTIN_MOYCE_HEIGHT
+
+
+@pytest.fixture
+def gen(benchmark_script):
+    return benchmark_script("interfoam_dambreak")
+
+
+def _patch(text: str, name: str) -> str:
+    return re.search(rf"{name}\s*\{{\s*type (\w+);", text).group(1)
+
+
+@pytest.mark.parametrize("floor", ["slip", "noslip"])
+def test_case_is_the_scene_with_its_floor(gen, tmp_path, floor):
+    """The box, the fluids and the column come from the scene; ``--floor`` sets the floor."""
+    case = tmp_path / "case"
+    assert gen.main(["make", str(case), "--nx", "10", "--ny", "5", "--floor", floor]) is None
+    pb = gen.dam_break_from_scene()
+    assert (pb.a, pb.n2, pb.rho_water, pb.rho_air) == (0.05715, 2.0, 1000.0, 1.0)
+    u = (case / "0/U").read_text()
+    assert _patch(u, "bottom") == {"slip": "slip", "noslip": "noSlip"}[floor]
+    assert _patch(u, "left") == _patch(u, "right") == _patch(u, "top") == "slip"
+    info = gen.interfoam_case.eval_case_txt(case)
+    assert info["floor"] == floor and info["nx"] == 10
+    rows = gen.case_front(case)  # t = 0 only: the initial column
+    assert rows.shape == (1, 6)
+    assert rows[0, 2] == pytest.approx(1.0) and rows[0, 4] == pytest.approx(1.0)
+
+
+def test_initial_column_is_exact_on_any_grid(gen):
+    """Cell area fractions of the column sum to its area; the front and height of the
+    initial field sit on the column's edges where they are cell faces."""
+    pb = gen.dam_break_from_scene()
+    cell = (pb.x1 - pb.x0) * (pb.y1 - pb.y0)
+    for nx, ny in ((100, 50), (37, 23)):
+        a = gen.initial_alpha(pb, nx, ny)
+        assert a.min() >= 0.0 and a.max() <= 1.0
+        assert a.sum() * cell / (nx * ny) == pytest.approx(pb.n2 * pb.a**2, rel=1e-12)
+    z, h = gen.front_height(gen.initial_alpha(pb, 100, 50), pb, 100, 50)
+    assert (z, h) == (pytest.approx(1.0, abs=1e-12), pytest.approx(1.0, abs=1e-12))
+
+
+def test_front_is_the_farthest_crossing_of_any_row(gen):
+    """A tongue of water along the floor and a droplet further on: the droplet's far edge."""
+    pb = gen.dam_break_from_scene()
+    nx, ny = 100, 50
+    a = np.zeros((ny, nx))
+    a[:40, :20] = 1.0
+    a[0, :50] = 1.0  # tongue
+    a[3, 70] = 0.75  # droplet: 0.5 is reached 1/3 of a cell beyond its centre
+    dx = (pb.x1 - pb.x0) / nx
+    z, h = gen.front_height(a.ravel(), pb, nx, ny)
+    assert z * pb.a == pytest.approx((70.5 + 1.0 / 3.0) * dx)
+    assert h == pytest.approx(1.0)
+
+
+def test_summary_of_a_front_ahead_by_a_constant(gen):
+    """A curve 0.2 a ahead of Martin & Moyce at every time: error 0.2 and mean lead 0.2."""
+    T = np.union1d(np.linspace(0.0, 3.4, 69), MARTIN_MOYCE_FRONT[:, 0])
+    Z = np.interp(T, *MARTIN_MOYCE_FRONT.T) + 0.2
+    tau = T / np.sqrt(2.0)
+    H = np.interp(tau, *MARTIN_MOYCE_HEIGHT.T)
+    vol = np.full_like(T, 2.0)
+    vol[5] = 2.002
+    rows = np.column_stack([T, T, Z, tau, H, vol])
+    s = gen.summarise(rows)
+    assert s["front_error"] == pytest.approx(0.2)
+    assert s["mean_front_lead"] == pytest.approx(0.2)
+    assert s["Z_last"] == pytest.approx(4.31)
+    assert s["height_error"] == pytest.approx(0.0, abs=1e-12)
+    assert s["volume_change_max"] == pytest.approx(1e-3)
