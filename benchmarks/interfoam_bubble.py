@@ -60,7 +60,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import gzip
 import json
 import math
 import re
@@ -247,32 +246,6 @@ def run_case(case: Path, tlim: float = 1800.0) -> dict[str, float | int]:
 
 
 # --------------------------------------------------------------------------- reading
-def _read_text(path: Path) -> str | None:
-    if path.is_file():
-        return path.read_text()
-    gz = path.with_name(path.name + ".gz")
-    if gz.is_file():
-        with gzip.open(gz, "rt") as f:
-            return f.read()
-    return None
-
-
-def read_internal_vector(path: Path, ncells: int) -> np.ndarray | None:
-    """The internalField of an ASCII volVectorField as (ncells, 3); None if absent."""
-    text = _read_text(path)
-    if text is None:
-        return None
-    m = re.search(r"internalField\s+uniform\s+\(([^)]*)\)", text)
-    if m is not None:
-        return np.tile(np.array(m.group(1).split(), dtype=float), (ncells, 1))
-    m = re.search(r"internalField\s+nonuniform\s+List<vector>\s*(\d+)\s*\(", text)
-    if m is None:
-        return None
-    n = int(m.group(1))
-    body = text[m.end() :].replace("(", " ").replace(")", " ")
-    return np.array(body.split(None, 3 * n)[: 3 * n], dtype=float).reshape(n, 3)
-
-
 def read_internal_alpha(path: Path) -> np.ndarray | None:
     """The internalField of an ASCII volScalarField (plain or ``.gz``); None if absent."""
     return interfoam_case.read_internal_scalar(path)
@@ -310,7 +283,7 @@ def series(case: Path) -> np.ndarray:
     rows = []
     for t, d in interfoam_case.time_dirs(case):
         a = read_internal_alpha(d / "alpha.bubble")
-        u = read_internal_vector(d / "U", 2 * n * n)
+        u = interfoam_case.read_internal_vector(d / "U", 2 * n * n)
         if a is None or u is None or a.size != 2 * n * n:
             continue
         g = geometry(pb, n, a, u)

@@ -395,14 +395,36 @@ def run_case(case: Path, nproc: int = 1, tlim: float = 1500.0) -> dict[str, floa
 
 
 # --------------------------------------------------------------------------- tips
+def _read_text(path: Path) -> str | None:
+    if path.is_file():
+        return path.read_text()
+    gz = path.with_name(path.name + ".gz")
+    if gz.is_file():
+        with gzip.open(gz, "rt") as f:
+            return f.read()
+    return None
+
+
+def read_internal_vector(path: Path, ncells: int) -> np.ndarray | None:
+    """The internalField of an ASCII volVectorField as (ncells, 3); None if absent."""
+    text = _read_text(path)
+    if text is None:
+        return None
+    m = re.search(r"internalField\s+uniform\s+\(([^)]*)\)", text)
+    if m is not None:
+        return np.tile(np.array(m.group(1).split(), dtype=float), (ncells, 1))
+    m = re.search(r"internalField\s+nonuniform\s+List<vector>\s*(\d+)\s*\(", text)
+    if m is None:
+        return None
+    n = int(m.group(1))
+    body = text[m.end() :].replace("(", " ").replace(")", " ")
+    return np.array(body.split(None, 3 * n)[: 3 * n], dtype=float).reshape(n, 3)
+
+
 def read_internal_scalar(path: Path) -> np.ndarray | None:
     """The internalField of an ASCII volScalarField (plain or ``.gz``); None if absent."""
-    if path.is_file():
-        text = path.read_text()
-    elif path.with_name(path.name + ".gz").is_file():
-        with gzip.open(path.with_name(path.name + ".gz"), "rt") as f:
-            text = f.read()
-    else:
+    text = _read_text(path)
+    if text is None:
         return None
     m = re.search(r"internalField\s+nonuniform\s+List<scalar>\s*(\d+)\s*\(", text)
     if m is None:

@@ -31,7 +31,8 @@ at the left wall, against tau = t sqrt(g / a); and it prints the numbers pfem2x'
 ``height_error``, Z at the last front point, the mean of Z - Z_MM over Martin & Moyce's
 points from T = 0.4 on, and the largest change of the water volume; with
 ``log.interFoam`` in the case also the number of time steps and interFoam's CPU seconds
-(its last ``ExecutionTime``).
+(its last ``ExecutionTime``), and from the last fields the share of the potential energy
+released that is not kinetic energy (pfem2x's ``energy_lost_final``).
 """
 
 from __future__ import annotations
@@ -194,6 +195,31 @@ def case_front(case: Path) -> np.ndarray:
     return np.array(rows, dtype=float).reshape(-1, 6)
 
 
+def energy_lost(case: Path) -> float | None:
+    """pfem2x's ``energy_lost_final`` of a case: 1 - (kinetic energy at the last written
+    time) / (potential energy released since t = 0), from its ``U`` and ``alpha.water``
+    (cell-centre values, rho = alpha rho_water + (1 - alpha) rho_air); None without them."""
+    info = interfoam_case.eval_case_txt(case)
+    pb = DamBreak(**{k: info[k] for k in DamBreak.__dataclass_fields__})
+    nx, ny = int(info["nx"]), int(info["ny"])
+    t, last = interfoam_case.time_dirs(case)[-1]
+    alpha = interfoam_case.read_internal_scalar(last / "alpha.water")
+    u = interfoam_case.read_internal_vector(last / "U", nx * ny)
+    if t <= 0.0 or alpha is None or u is None or len(u) != nx * ny:
+        return None
+    dx, dy = (pb.x1 - pb.x0) / nx, (pb.y1 - pb.y0) / ny
+    y = np.repeat(pb.y0 + dy * (np.arange(ny) + 0.5), nx)
+
+    def rho(a: np.ndarray) -> np.ndarray:
+        return a * pb.rho_water + (1.0 - a) * pb.rho_air
+
+    released = pb.g * dx * dy * float(np.sum((rho(initial_alpha(pb, nx, ny)) - rho(alpha)) * y))
+    if not released > 0.0:
+        return None
+    kinetic = 0.5 * dx * dy * float(np.sum(rho(alpha) * (u[:, 0] ** 2 + u[:, 1] ** 2)))
+    return 1.0 - kinetic / released
+
+
 def summarise(rows: np.ndarray) -> dict[str, float]:
     """``front_error``, ``height_error`` (pfem2x's definitions), Z at the last front point,
     the mean of Z - Z_MM from T = 0.4 on and the largest relative water-volume change."""
@@ -270,6 +296,9 @@ def main(argv: list[str] | None = None) -> None:
     if len(rows) < 2:
         fail(f"{a.case}: fewer than two written alpha.water fields")
     out |= log_facts(a.case) | summarise(rows)
+    lost = energy_lost(a.case)
+    if lost is not None:
+        out["energy_lost_final"] = lost
     for k, v in out.items():
         print(f"{k:18s} {v:.4g}" if isinstance(v, float) else f"{k:18s} {v}")
     if a.json:

@@ -76,3 +76,27 @@ def test_summary_of_a_front_ahead_by_a_constant(gen):
     assert s["Z_last"] == pytest.approx(4.31)
     assert s["height_error"] == pytest.approx(0.0, abs=1e-12)
     assert s["volume_change_max"] == pytest.approx(1e-3)
+
+
+def test_energy_lost_of_a_lowered_column(gen, tmp_path):
+    """The column a x 2a lowered to 2a x a, everything moving up at v: the released
+    potential energy (rho_w - rho_air) g a^3 against the kinetic energy of the box."""
+    case = tmp_path / "case"
+    gen.main(["make", str(case), "--nx", "100", "--ny", "50"])
+    pb = gen.dam_break_from_scene()
+    a = np.zeros((50, 100))
+    a[:20, :40] = 1.0  # cells of a / 20
+    v = 0.3
+    _field(case / "0.01" / "alpha.water", a.ravel())
+    (case / "0.01" / "U").write_text("internalField uniform (0 0.3 0);\n")
+    released = (pb.rho_water - pb.rho_air) * pb.g * pb.a**3
+    box = (pb.x1 - pb.x0) * (pb.y1 - pb.y0)
+    kinetic = 0.5 * v**2 * (pb.rho_water * 2 * pb.a**2 + pb.rho_air * (box - 2 * pb.a**2))
+    assert gen.energy_lost(case) == pytest.approx(1.0 - kinetic / released, rel=1e-9)
+    assert gen.case_front(case)[-1, 2] == pytest.approx(2.0)  # front Z = 2
+
+
+def _field(path, values):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    body = "\n".join(f"{v:.17g}" for v in values)
+    path.write_text(f"internalField nonuniform List<scalar>\n{len(values)}\n(\n{body}\n)\n;\n")

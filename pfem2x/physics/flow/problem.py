@@ -362,6 +362,9 @@ class FlowSolver(Solver):
             out["energy_released_final"] = released[-1]
             top = max(max(released), max(h["kinetic_energy"] for h in history))
             out["energy_excess_max"] = max(excess) / top if top > 0.0 else 0.0
+            if released[-1] > 0.0:  # what did not become kinetic energy: dissipated
+                gained = history[-1]["kinetic_energy"] - history[0]["kinetic_energy"]
+                out["energy_lost_final"] = 1.0 - gained / released[-1]
         for name, *_ in self.problem.phases:
             out[f"volume_{name}"] = [history[0][f"volume_{name}"], history[-1][f"volume_{name}"]]
             out[f"volume_change_{name}"] = history[-1][f"volume_change_{name}"]
