@@ -121,12 +121,6 @@ def test_mesh_velocity_of_new_particles_follows_the_serial_run(shared_tmp):
     m = res.summary["metrics"]
     assert m["volume_change_max_water"] < 0.008
     assert m["energy_excess_max"] < 0.01
-    # the share of the released potential energy not kinetic at the end (0.132 measured:
-    # the total pressure step's dissipation, first order in dt; interFoam about 0)
-    assert m["energy_lost_final"] == pytest.approx(
-        1.0 - m["kinetic_energy_final"] / m["energy_released_final"], rel=1e-12
-    )
-    assert 0.0 < m["energy_lost_final"] < 0.2
     if MPI.COMM_WORLD.size > 1:
         sub = shared_tmp / f"serial{MPI.COMM_WORLD.rank}"
         ser = run(sub, *over, variant=None, comm=MPI.COMM_SELF).summary["metrics"]
@@ -178,12 +172,6 @@ def test_frame_defaults_run_with_the_consistent_pass_pressure(shared_tmp):
     assert m["courant_max"] >= 5.0
     assert m["front"][-1][0] == pytest.approx(0.1797 * np.sqrt(2 * 9.81 / 0.05715), rel=1e-9)
     assert m["energy_excess_max"] < 0.01
-    # the share of the released potential energy not kinetic at the end (0.132 measured:
-    # the total pressure step's dissipation, first order in dt; interFoam about 0)
-    assert m["energy_lost_final"] == pytest.approx(
-        1.0 - m["kinetic_energy_final"] / m["energy_released_final"], rel=1e-12
-    )
-    assert 0.0 < m["energy_lost_final"] < 0.2
     assert m["volume_change_max_particles_water"] < 0.08
     ez, eh = front_height_errors(m)
     assert ez < 0.3 and eh < 0.08, (ez, eh)
@@ -209,12 +197,6 @@ def test_discrete_projection_keeps_the_water_particles(shared_tmp):
     assert m["volume_change_max_particles_water"] < 0.01
     assert m["volume_change_max_water"] < 1e-9
     assert m["energy_excess_max"] < 0.01
-    # the share of the released potential energy not kinetic at the end (0.132 measured:
-    # the total pressure step's dissipation, first order in dt; interFoam about 0)
-    assert m["energy_lost_final"] == pytest.approx(
-        1.0 - m["kinetic_energy_final"] / m["energy_released_final"], rel=1e-12
-    )
-    assert 0.0 < m["energy_lost_final"] < 0.2
     ez, eh = front_height_errors(m)
     assert ez < 0.3 and eh < 0.08, (ez, eh)
     its = [h["divergence_iterations"] for h in res.history[1:]]
