@@ -43,6 +43,7 @@ __all__ = [
     "RisingBubbleCase",
     "StaticDropCase",
     "curve_errors",
+    "interfoam_dam_break",
     "make_case",
     "moonmd_series",
     "subcell_points",
@@ -253,19 +254,41 @@ class DamBreakCase(Case):
     ``height`` = ``[[tau, H]]``, the particle variants, and (``n2 = 2``, the
     reference's column) ``front_error`` / ``height_error``: the largest
     distance to Martin & Moyce's points, interpolated in time (front from
-    ``T = 0.4``), over the run's output times within their range.
+    ``T = 0.4``), over the run's output times within their range. When the scene
+    states the shipped scene's problem (:attr:`REFERENCE`: column, box, fluids, slip
+    walls), also ``front_error_model`` / ``height_error_model``: the same distances to
+    the front and height of that problem solved by interFoam on 400 x 200 cells
+    (:func:`interfoam_dam_break`; converged in mesh and step to about 0.02 a), which
+    measure the discretisation's error where Martin & Moyce's also hold the model's
+    (the gate, the floor's friction: docs/RESULTS.md, "interFoam on the same dam break").
     """
 
     name = "dam-break"
     #: ``front_error`` ignores T < 0.4 (the release: M&M's gate needed time to lift).
     FRONT_FROM = 0.4
+    #: the problem of :func:`interfoam_dam_break`: params, box in units of a, phases
+    #: (density, viscosity) of the column and of the rest
+    REFERENCE = {"a": 0.05715, "n2": 2.0, "g": 9.81, "box": (5.0, 2.5),
+                 "phases": ((1000.0, 1e-3), (1.0, 1.8e-5))}  # fmt: skip
 
     def __init__(self, solver: Any):
-        p = solver.scene.params
+        sc = solver.scene
+        p = sc.params
         self.a, self.n2, self.g = float(p["a"]), float(p["n2"]), float(p["g"])
         self.lo = np.asarray(solver.domain.bounds[0], dtype=float)
         self.h = float(solver.domain.min_h())
         self.comm: MPI.Comm = solver.comm
+        size = (np.asarray(solver.domain.bounds[1], dtype=float) - self.lo) / self.a
+        phases = sorted(((ph.region is None, ph.density, ph.viscosity) for ph in
+                         sc.phases.values()), key=lambda x: x[0])  # fmt: skip
+        ref = self.REFERENCE
+        self.model = (
+            all(abs(v - ref[k]) <= 1e-9 * ref[k] for k, v in
+                (("a", self.a), ("n2", self.n2), ("g", self.g)))
+            and np.allclose(size, ref["box"], rtol=1e-9)
+            and [(d, m) for _, d, m in phases] == [tuple(x) for x in ref["phases"]]
+            and all(sc.flow.side(w) == "slip" for w in ("left", "right", "bottom", "top"))
+        )  # fmt: skip
 
     def _max(self, v: np.ndarray) -> float:
         return float(self.comm.allreduce(float(v.max()) if len(v) else -np.inf, op=MPI.MAX))
@@ -304,7 +327,32 @@ class DamBreakCase(Case):
                 err = reference_error(np.asarray(out[key]), ref, t0)
                 if err is not None:
                     out[f"{key}_error"] = err
+        model = interfoam_dam_break() if self.model else None
+        if model is not None:
+            for key, cols, t0 in (("front", [0, 1], self.FRONT_FROM), ("height", [2, 3], 0.0)):
+                err = reference_error(np.asarray(out[key]), model[:, cols], t0)
+                if err is not None:
+                    out[f"{key}_error_model"] = err
         return out
+
+
+def interfoam_dam_break() -> np.ndarray | None:
+    """The shipped dam break solved by interFoam (400 x 200 cells, maxCo 0.5).
+
+    Read from the package's ``data/interfoam_dam_break.csv``
+    (docs/data/dam-break/interfoam/r400_co0.5, ``benchmarks/interfoam_dambreak.py``).
+
+    Returns
+    -------
+    numpy.ndarray or None
+        Rows ``(T, Z, tau, H)`` every ``dT = 0.05`` from 0 to 3.35: the front against
+        Martin & Moyce's ``T``, the height at the left wall against their ``tau``.
+    """
+    path = resources.files("pfem2x") / "data" / "interfoam_dam_break.csv"
+    if not path.is_file():
+        return None
+    with path.open() as f:
+        return np.loadtxt(f, delimiter=",", skiprows=5, ndmin=2)
 
 
 class RayleighTaylorCase(Case):

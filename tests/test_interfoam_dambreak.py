@@ -100,3 +100,18 @@ def _field(path, values):
     path.parent.mkdir(parents=True, exist_ok=True)
     body = "\n".join(f"{v:.17g}" for v in values)
     path.write_text(f"internalField nonuniform List<scalar>\n{len(values)}\n(\n{body}\n)\n;\n")
+
+
+def test_packaged_reference_is_the_stored_finest_run():
+    """The package's interFoam front and height (``pfem2x.cases.interfoam_dam_break``) are
+    the stored 400 x 200 run's, rounded to 4-5 digits."""
+    from pathlib import Path
+
+    from pfem2x.cases import interfoam_dam_break
+
+    ref = interfoam_dam_break()
+    root = Path(__file__).resolve().parents[1]
+    rows = np.loadtxt(root / "docs/data/dam-break/interfoam/r400_co0.5/front.csv",
+                      delimiter=",", skiprows=1)  # fmt: skip
+    assert ref.shape == (len(rows), 4)
+    assert np.abs(ref - rows[:, [1, 2, 3, 4]]).max() < 1e-4
