@@ -3,8 +3,8 @@
 Usage::
 
     python benchmarks/interfoam_dambreak.py make CASE --nx 100 --ny 50 [--max-co 0.5]
-        [--floor slip] [--write-every 0.05]
-    python benchmarks/interfoam_dambreak.py run CASE [--tlim 1800]
+        [--floor slip] [--write-every 0.05] [--overwrite]
+    python benchmarks/interfoam_dambreak.py run CASE [--tlim 1800] [--json FILE]
     python benchmarks/interfoam_dambreak.py front CASE [--json FILE]
 
 The problem is the scene ``pfem2x/scenes/dam-break.toml``: its ``[params]`` (column width
@@ -288,13 +288,16 @@ def main(argv: list[str] | None = None) -> None:
         fail(f"{interfoam_case.FOAM_BASHRC}: OpenFOAM not found (apt-get install openfoam)")
     if a.cmd == "run":
         t0 = time.perf_counter()
-        out = interfoam_case.run_case(a.case, 1, a.tlim)
+        try:
+            out = interfoam_case.run_case(a.case, 1, a.tlim)
+        except RuntimeError as e:  # blockMesh failed: its log is named
+            fail(str(e))
         print(f"interFoam: rc {out['rc']}, wall {time.perf_counter() - t0:.1f} s")
     rows = case_front(a.case)
-    np.savetxt(a.case / "front.csv", rows, delimiter=",", fmt="%.8g",
-               header="t,T,Z,tau,H,volume", comments="")  # fmt: skip
     if len(rows) < 2:
         fail(f"{a.case}: fewer than two written alpha.water fields")
+    np.savetxt(a.case / "front.csv", rows, delimiter=",", fmt="%.8g",
+               header="t,T,Z,tau,H,volume", comments="")  # fmt: skip
     out |= log_facts(a.case) | summarise(rows)
     lost = energy_lost(a.case)
     if lost is not None:

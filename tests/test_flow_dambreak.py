@@ -113,10 +113,12 @@ def test_dam_break_courant5_whole_collapse(shared_tmp):
 
 def test_model_reference_only_for_the_shipped_problem(tmp_path):
     """``front_error_model`` compares with interFoam's solution of the shipped problem
-    only: a water density of 999 (or another column, box or wall) has none."""
+    only: another density, wall, gravity or column has none."""
     m = run(tmp_path / "a", *QUIET, "time.t_end=0.03").summary["metrics"]
     assert "front_error_model" in m and "height_error_model" in m
-    for i, over in enumerate(("phases.water.density=999", 'flow.bottom="noslip"')):
+    others = ("phases.water.density=999", 'flow.bottom="noslip"', "flow.gravity=[0.0,-5.0]",
+              'phases.water.region="x < a and y < a"')  # fmt: skip
+    for i, over in enumerate(others):
         m = run(tmp_path / f"b{i}", *QUIET, "time.t_end=0.03", over).summary["metrics"]
         assert "front_error_model" not in m and "front_error" in m, over
 

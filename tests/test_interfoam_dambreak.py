@@ -115,3 +115,17 @@ def test_packaged_reference_is_the_stored_finest_run():
                       delimiter=",", skiprows=1)  # fmt: skip
     assert ref.shape == (len(rows), 4)
     assert np.abs(ref - rows[:, [1, 2, 3, 4]]).max() < 1e-4
+
+
+def test_front_of_a_case_that_has_not_run(gen, tmp_path, capsys):
+    """``front`` before ``run``: one error line, exit 2, no ``front.csv``; ``front`` of a
+    folder that is no case names it."""
+    case = tmp_path / "case"
+    gen.main(["make", str(case), "--nx", "10", "--ny", "5"])
+    for target in (case, tmp_path):
+        with pytest.raises(SystemExit) as e:
+            gen.main(["front", str(target)])
+        assert e.value.code == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("error: ") and str(target) in err[0]
+    assert not (case / "front.csv").exists()
