@@ -81,7 +81,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import interfoam_case  # noqa: E402  (benchmarks/interfoam_case.py: _foam, _foam_file)
 
 QUANTITIES = ("centroid_y_final", "rise_velocity_max", "circularity_min")
-WALL_BC = {"noslip": "type noSlip;", "slip": "type slip;"}
 
 
 @dataclass(frozen=True)
@@ -184,7 +183,7 @@ def write_case(case: Path, spec: BubbleSpec, pb: Bubble | None = None) -> None:
     """Write a complete interFoam case for ``spec`` into the folder ``case``."""
     pb = pb or bubble_from_scene()
     for side in ("left", "right", "bottom", "top"):
-        if getattr(pb, side) not in WALL_BC:
+        if getattr(pb, side) not in interfoam_case.WALL_BC:
             raise ValueError(f"flow.{side} = {getattr(pb, side)!r}: only noslip and slip")
     case.mkdir(parents=True, exist_ok=True)
     nx, ny = spec.n, 2 * spec.n
@@ -228,7 +227,7 @@ def write_case(case: Path, spec: BubbleSpec, pb: Bubble | None = None) -> None:
         case, ("bubble", pb.rho_bubble, pb.mu_bubble), ("outer", pb.rho_outer, pb.mu_outer),
         pb.g, pb.sigma,
     )  # fmt: skip
-    u_bc = {w: WALL_BC[getattr(pb, w)] for w in interfoam_case.SIDES}
+    u_bc = {w: interfoam_case.WALL_BC[getattr(pb, w)] for w in interfoam_case.SIDES}
     interfoam_case.write_fields(case, "bubble", initial_alpha(pb, spec.n), u_bc)
     (case / "case.txt").write_text(repr(asdict(spec) | asdict(pb)) + "\n")
 

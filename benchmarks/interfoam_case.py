@@ -145,6 +145,8 @@ def initial_alpha(pb: Problem, nx: int, ny: int, sign: float, order: int = 16) -
 
 
 SIDES = ("left", "right", "bottom", "top")
+#: the velocity of a wall of pfem2x's kind (``flow.walls``, ``flow.<side>``)
+WALL_BC = {"noslip": "type noSlip;", "slip": "type slip;"}
 #: p_rgh and alpha on every wall
 P_RGH_WALL = "type fixedFluxPressure; value uniform 0;"
 ALPHA_WALL = "type zeroGradient;"

@@ -62,7 +62,7 @@ from pfem2x.cases import (  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "pfem2x" / "scenes" / "dam-break.toml"
-FLOOR_BC = {"slip": "type slip;", "noslip": "type noSlip;"}
+FLOOR_BC = interfoam_case.WALL_BC  # the floor: slip (the scene) or noslip
 
 
 @dataclass(frozen=True)
