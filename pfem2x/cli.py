@@ -89,9 +89,11 @@ def main(argv: list[str] | None = None) -> int:
             solver = make_solver(scene, domain)
             dt, steps = time_grid(scene, domain, solver)
             if comm.rank == 0:
+                taken = f"; [frames.{scene.frame}]: " + ", ".join(scene.frame_keys)
                 print(
                     f"ok: {scene.name} ({scene.physics}, {scene.frame}), "
                     f"{domain.num_cells_global()} cells, {steps} steps of dt = {dt:.4g}"
+                    + (taken if scene.frame_keys else "")
                 )
             return 0
         out = Path(args.out) if args.out else None  # None: runs/<scene name>, checked

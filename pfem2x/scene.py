@@ -28,6 +28,7 @@ from types import MappingProxyType
 from typing import Any
 
 from pfem2x.expr import FUNCTIONS, VARIABLES, Expression, ExpressionError
+from pfem2x.scene_layers import Layer, apply_layers, check_frames, flatten
 from pfem2x.scene_reference import schema_markdown
 from pfem2x.scene_schema import (
     BYTES_PER_PARTICLE,
@@ -117,6 +118,9 @@ class Scene:
     phases: Mapping[str, PhaseSection]
     #: Section → its keys in the order :meth:`resolved_toml` writes them (given first).
     key_order: dict[str, tuple[str, ...]] = field(default_factory=dict, repr=False)
+    #: ``"key = value"`` of the scene's ``[frames.FRAME]`` table that the run took
+    #: (:func:`load_scene`; empty for a scene validated from a dict).
+    frame_keys: tuple[str, ...] = ()
 
     @property
     def sections(self) -> dict[str, Mapping[str, Any]]:
@@ -226,16 +230,6 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     return [p.strip() for p in parts], value
 
 
-def _set_dotted(raw: dict, parts: list[str], value: Any, where: str) -> None:
-    d = raw
-    for p in parts[:-1]:
-        nxt = d.setdefault(p, {})
-        if not isinstance(nxt, dict):
-            raise SceneError(f"{where}: {p!r} is not a section")
-        d = nxt
-    d[parts[-1]] = value
-
-
 def load_scene(
     name_or_path: str | Path,
     overrides: list[str] | None = None,
@@ -250,7 +244,9 @@ def load_scene(
     overrides:
         ``KEY=VALUE`` strings (as given to ``--set``).
     variant:
-        Apply the scene's ``[variants.NAME]`` table (dotted keys) first.
+        Apply the scene's ``[variants.NAME]`` table (dotted keys) before ``overrides``
+        and after the ``[frames.FRAME]`` table of the run's frame
+        (:mod:`pfem2x.scene_layers`).
 
     Raises
     ------
@@ -267,25 +263,21 @@ def load_scene(
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"{path}: not valid TOML ({exc})") from None
     raw = copy.deepcopy(raw)
+    vlayer: Layer = []
     if variant:
         variants = raw.get("variants", {})
         if variant not in variants:
             known = ", ".join(sorted(variants)) or "none"
             raise SceneError(f"--variant {variant}: {path.name} has no such variant (has: {known})")
-        for k, v in variants[variant].items():
-            _set_dotted(raw, k.split("."), v, f"variants.{variant}.{k}")
-    step_keys: set[str] = set()
+        vlayer = flatten(variants[variant], f"variants.{variant}")
+    sets: Layer = []
     for ov in overrides or []:
         parts, value = parse_override(ov)
-        _set_dotted(raw, parts, value, f"--set {ov}")
-        if parts[0] == "time" and len(parts) == 2 and parts[1] in ("dt", "courant"):
-            step_keys.add(parts[1])
-    # `--set time.dt=...` on a scene that sets time.courant (or the reverse) replaces it;
-    # giving both on the command line is still refused by validation.
-    if len(step_keys) == 1 and isinstance(raw.get("time"), dict):
-        other = "courant" if "dt" in step_keys else "dt"
-        raw["time"].pop(other, None)
-    return validate(raw, source=str(path), base_dir=path.parent)
+        sets.append((parts, value, f"--set {ov}"))
+    kept = apply_layers(raw, vlayer, sets)
+    scene = validate(raw, source=str(path), base_dir=path.parent)
+    scene.frame_keys = tuple(f"{'.'.join(p)} = {toml_value(v)}" for p, v, _ in kept)
+    return scene
 
 
 def _unknown(key: str, known: list[str], where: str) -> SceneError:
@@ -309,6 +301,7 @@ def validate(raw: dict[str, Any], source: str = "<scene>", base_dir: Path | None
     for sec in SCHEMA:
         if sec in raw and not isinstance(raw[sec], dict):
             raise SceneError(f"{sec}: expected a table [{sec}], got {_type_name(raw[sec])}")
+    check_frames(raw)
     params = _validate_params(raw.get("params", {}))
     sections: dict[str, dict[str, Any]] = {}
     for sec, keys in SCHEMA.items():
@@ -592,20 +585,22 @@ def _find_mesh_file(name: str, base_dir: Path) -> Path:
     )
 
 
+def toml_value(v: Any) -> str:
+    """One value as TOML text (array, string, number, boolean)."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    raise TypeError(type(v))
+
+
 def dump_toml(data: Mapping[str, Any]) -> str:
     """Write a (nested) dict as TOML text (tables, arrays, strings, numbers, booleans)."""
-
-    def val(v: Any) -> str:
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, int | float):
-            return repr(v)
-        if isinstance(v, str):
-            return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-        if isinstance(v, list | tuple):
-            return "[" + ", ".join(val(x) for x in v) + "]"
-        raise TypeError(type(v))
-
+    val = toml_value
     lines: list[str] = []
 
     def table(prefix: str, d: Mapping[str, Any]) -> None:

@@ -623,4 +623,4 @@ FRAME_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
 }
 
 #: Sections whose keys are free-form.
-FREE_SECTIONS = {"params", "variants", "phases", "case"}
+FREE_SECTIONS = {"params", "variants", "frames", "phases", "case"}

@@ -1,0 +1,116 @@
+"""Layers of a scene: its frame tables, a variant and ``--set``, applied in that order.
+
+A scene file may hold, besides its sections, ``[variants.NAME]`` tables (chosen by
+``--variant NAME``) and ``[frames.FRAME]`` tables (applied when ``method.frame`` is
+``FRAME``, whichever way it was chosen). Both hold dotted keys
+(``"flow.pressure_step" = "total"``; nested tables are read as their dotted leaves).
+:func:`apply_layers` writes them into the scene's raw dict: first the table of the
+run's frame, then the variant, then ``--set``, each layer over the ones before it, so
+that a variant or a ``--set`` always wins over a frame table. A layer that sets
+exactly one of ``time.dt`` and ``time.courant`` replaces the other.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pfem2x.scene_schema import SCHEMA, SceneError
+
+__all__ = ["Layer", "apply_layers", "check_frames", "flatten"]
+
+#: One layer: (dotted key as parts, value, where the key was given).
+Layer = list[tuple[list[str], Any, str]]
+
+_STEP = ("dt", "courant")
+
+
+def flatten(table: dict[str, Any], where: str) -> Layer:
+    """A table of dotted keys (nested tables read as their leaves) as one layer."""
+    out: Layer = []
+    for k, v in table.items():
+        parts = [p.strip() for p in str(k).split(".")]
+        if any(not p for p in parts):
+            raise SceneError(f"{where}.{k}: bad key")
+        if isinstance(v, dict) and v:
+            for sub, val, _ in flatten(v, f"{where}.{k}"):
+                out.append(([*parts, *sub], val, f"{where}.{'.'.join([*parts, *sub])}"))
+        else:
+            out.append((parts, v, f"{where}.{'.'.join(parts)}"))
+    return out
+
+
+def check_frames(raw: dict[str, Any]) -> dict[str, Layer]:
+    """The scene's ``[frames.*]`` tables as layers, each key checked against the schema.
+
+    Raises
+    ------
+    SceneError
+        For a frame that ``method.frame`` cannot take, a key outside the schema's
+        sections, or a table that sets ``method.frame`` itself.
+    """
+    frames = raw.get("frames", {})
+    if not isinstance(frames, dict):
+        raise SceneError("frames: expected tables [frames.FRAME] of dotted keys")
+    known = SCHEMA["method"]["frame"].check
+    out: dict[str, Layer] = {}
+    for name, table in frames.items():
+        try:
+            known(f"frames.{name}", name)
+        except SceneError:
+            raise SceneError(
+                f"frames.{name}: not a frame (method.frame is one of lagrangian, eulerian, "
+                "characteristic)"
+            ) from None
+        if not isinstance(table, dict):
+            raise SceneError(f"frames.{name}: expected a table of dotted keys")
+        layer = flatten(table, f"frames.{name}")
+        for parts, _, where in layer:
+            if parts[:2] == ["method", "frame"]:
+                raise SceneError(f"{where}: a frame table cannot choose the frame")
+            if len(parts) != 2 or parts[0] not in SCHEMA or parts[1] not in SCHEMA[parts[0]]:
+                raise SceneError(f"{where}: not a key of the scene's sections (e.g. flow.rtol)")
+        out[name] = layer
+    return out
+
+
+def _frame(raw: dict[str, Any], later: list[Layer]) -> Any:
+    frame = raw.get("method", {}).get("frame", SCHEMA["method"]["frame"].default)
+    for layer in later:
+        for parts, value, _ in layer:
+            if parts == ["method", "frame"]:
+                frame = value
+    return frame
+
+
+def _set_dotted(raw: dict, parts: list[str], value: Any, where: str) -> None:
+    d = raw
+    for p in parts[:-1]:
+        nxt = d.setdefault(p, {})
+        if not isinstance(nxt, dict):
+            raise SceneError(f"{where}: {p!r} is not a section")
+        d = nxt
+    d[parts[-1]] = value
+
+
+def _step_keys(layer: Layer) -> set[str]:
+    return {p[1] for p, _, _ in layer if len(p) == 2 and p[0] == "time" and p[1] in _STEP}
+
+
+def apply_layers(raw: dict[str, Any], variant: Layer, sets: Layer) -> Layer:
+    """Write the run's frame table, then ``variant``, then ``sets`` into ``raw`` (in place).
+
+    Returns the frame table's entries that the run keeps (those no later layer replaces).
+    """
+    frames = check_frames(raw)
+    frame = _frame(raw, [variant, sets])
+    chosen = frames.get(frame, []) if isinstance(frame, str) else []
+    for layer in (chosen, variant, sets):
+        step = _step_keys(layer)
+        if len(step) == 1 and isinstance(raw.get("time"), dict):
+            raw["time"].pop(_STEP[1 - _STEP.index(step.pop())], None)
+        for parts, value, where in layer:
+            _set_dotted(raw, parts, value, where)
+    later = {tuple(p) for p, _, _ in variant + sets}
+    if _step_keys(variant + sets):
+        later |= {("time", k) for k in _STEP}
+    return [e for e in chosen if tuple(e[0]) not in later]

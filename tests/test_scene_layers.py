@@ -1,0 +1,155 @@
+"""Scene layers: ``[frames.FRAME]`` tables, then ``[variants.NAME]``, then ``--set``."""
+
+import subprocess
+import sys
+import tomllib
+
+import pytest
+
+from pfem2x.scene import SceneError, load_scene, validate
+
+BASE = """
+[scene]
+name = "tiny-flow"
+physics = "flow"
+[mesh]
+kind = "rectangle"
+bounds = [[0, 0], [1, 1]]
+cells = [4, 4]
+[effects]
+viscosity = true
+[phases.fluid]
+density = 1.0
+viscosity = 0.01
+[flow]
+rtol = 1e-8
+velocity_scale = 1.0
+[time]
+t_end = 0.1
+courant = 2.0
+[method]
+frame = "lagrangian"
+"""
+
+
+def write(tmp_path, extra: str):
+    p = tmp_path / "scene.toml"
+    p.write_text(BASE + extra, encoding="utf-8")
+    return p
+
+
+def test_each_frame_gets_its_own_table():
+    lag = load_scene("dam-break")
+    eul = load_scene("dam-break", ["method.frame=eulerian"])
+    assert (lag.flow.pressure_step, lag.flow.pass_pressure) == ("increment", "consistent")
+    assert lag.flow.divergence_rtol == 0.05 and lag.time.courant == 5.0
+    assert (eul.flow.pressure_step, eul.flow.divergence_rtol) == ("total", 0.0)
+    assert eul.flow.pass_pressure == "increment" and eul.time.courant == 1.0
+    # the variant (no frame keys) keeps each frame's table
+    small = load_scene("dam-break", ["method.frame=eulerian"], "small")
+    assert small.time.courant == 1.0 and small.mesh.cells == (60, 30)
+
+
+def test_set_and_variant_win_over_the_frame_table(tmp_path):
+    p = write(
+        tmp_path,
+        """
+[frames.lagrangian]
+"flow.rtol" = 1e-6
+"time.courant" = 4.0
+[variants.fine]
+"flow.rtol" = 1e-10
+""",
+    )
+    assert load_scene(p).flow.rtol == 1e-6 and load_scene(p).time.courant == 4.0
+    assert load_scene(p, variant="fine").flow.rtol == 1e-10
+    assert load_scene(p, ["flow.rtol=1e-9"], "fine").flow.rtol == 1e-9
+    assert load_scene(p, ["time.courant=8"]).time.courant == 8.0
+    sc = load_scene(p, ["time.dt=0.01"])  # replaces the frame table's Courant number
+    assert sc.time.dt == 0.01 and sc.time.courant is None
+    # another frame: no table
+    assert load_scene(p, ["method.frame=eulerian"]).flow.rtol == 1e-8
+
+
+def test_frame_chosen_by_a_variant_and_a_table_that_sets_dt(tmp_path):
+    p = write(
+        tmp_path,
+        """
+[frames.eulerian]
+time.dt = 0.02
+flow.rtol = 1e-7
+[variants.level-set]
+"method.frame" = "eulerian"
+""",
+    )
+    sc = load_scene(p, variant="level-set")
+    assert sc.method.frame == "eulerian" and sc.flow.rtol == 1e-7
+    assert sc.time.dt == 0.02 and sc.time.courant is None
+    assert load_scene(p).time.courant == 2.0
+
+
+def test_nested_variant_tables_set_only_their_leaves(tmp_path):
+    p = write(
+        tmp_path, "\n[variants.v.flow]\nrtol = 1e-6\n[variants.v.phases.fluid]\ndensity = 2.0\n"
+    )
+    sc = load_scene(p, variant="v")
+    assert sc.flow.rtol == 1e-6 and sc.phases["fluid"].viscosity == 0.01
+    assert sc.phases["fluid"].density == 2.0
+
+
+def test_resolved_scene_has_the_frame_keys_and_no_tables():
+    sc = load_scene("dam-break", ["method.frame=eulerian"])
+    raw = tomllib.loads(sc.resolved_toml())
+    assert "frames" not in raw and "variants" not in raw
+    assert raw["flow"]["pressure_step"] == "total" and raw["time"]["courant"] == 1.0
+    again = validate(raw)
+    assert again.flow == sc.flow and again.time == sc.time
+
+
+@pytest.mark.parametrize(
+    "extra, needles",
+    [
+        ('[frames.lagrangain]\n"flow.rtol" = 1e-6\n', ["frames.lagrangain", "lagrangian"]),
+        ('[frames.eulerian]\n"flow.rtoll" = 1e-6\n', ["frames.eulerian.flow.rtoll"]),
+        ('[frames.eulerian]\n"method.frame" = "lagrangian"\n', ["frames.eulerian.method.frame"]),
+        ("[frames]\neulerian = 3\n", ["frames.eulerian"]),
+        ("frames = 3\n", ["frames"]),
+        ('[frames.lagrangian]\n"flow.rtol" = -1.0\n', ["flow.rtol"]),
+    ],
+)
+def test_bad_frame_tables(tmp_path, extra, needles):
+    # the TOML text must come before any table of BASE's to be top-level for `frames = 3`
+    p = tmp_path / "scene.toml"
+    p.write_text(extra + BASE if extra.startswith("frames =") else BASE + extra, encoding="utf-8")
+    with pytest.raises(SceneError) as exc:
+        load_scene(p)
+    for n in needles:
+        assert n in str(exc.value), (n, str(exc.value))
+    res = subprocess.run(
+        [sys.executable, "-m", "pfem2x", "check", str(p)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    assert res.stderr.startswith("error: ") and needles[0] in res.stderr
+
+
+def test_check_names_the_frame_keys_the_run_takes():
+    assert load_scene("dam-break", ["method.frame=eulerian"]).frame_keys == (
+        'flow.pressure_step = "total"',
+        "time.courant = 1.0",
+    )
+    # a --set of one key (or of the step) leaves the others
+    sc = load_scene("dam-break", ["method.frame=eulerian", "time.dt=0.001"])
+    assert sc.frame_keys == ('flow.pressure_step = "total"',)
+    res = subprocess.run(
+        [sys.executable, "-m", "pfem2x", "check", "dam-break", "--set", "flow.rtol=1e-9"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip().endswith(
+        '[frames.lagrangian]: flow.pass_pressure = "consistent", flow.divergence_rtol = 0.05'
+    ), res.stdout
