@@ -66,6 +66,7 @@ __all__ = [
     "SceneError",
     "builtin_scenes",
     "dump_toml",
+    "toml_value",
     "load_scene",
     "parse_override",
     "resolve_scene_path",
@@ -266,14 +267,25 @@ def load_scene(
     vlayer: Layer = []
     if variant:
         variants = raw.get("variants", {})
+        if not isinstance(variants, dict):
+            raise SceneError("variants: expected tables [variants.NAME] of dotted keys")
         if variant not in variants:
             known = ", ".join(sorted(variants)) or "none"
             raise SceneError(f"--variant {variant}: {path.name} has no such variant (has: {known})")
+        if not isinstance(variants[variant], dict):
+            raise SceneError(f"variants.{variant}: expected a table of dotted keys")
         vlayer = flatten(variants[variant], f"variants.{variant}")
     sets: Layer = []
     for ov in overrides or []:
         parts, value = parse_override(ov)
-        sets.append((parts, value, f"--set {ov}"))
+        if parts[0] in ("frames", "variants"):
+            raise SceneError(
+                f"--set {ov}: [{parts[0]}] tables are read from the scene file only "
+                "(set the key itself, e.g. --set flow.rtol=1e-6)"
+            )
+        # a table value sets its leaves (as a variant's nested tables do)
+        leaves = flatten({".".join(parts): value}, "--set") if isinstance(value, dict) else []
+        sets += [(p, v, f"--set {ov}") for p, v, _ in leaves] or [(parts, value, f"--set {ov}")]
     kept = apply_layers(raw, vlayer, sets)
     scene = validate(raw, source=str(path), base_dir=path.parent)
     scene.frame_keys = tuple(f"{'.'.join(p)} = {toml_value(v)}" for p, v, _ in kept)
@@ -288,6 +300,9 @@ def _unknown(key: str, known: list[str], where: str) -> SceneError:
 
 def validate(raw: dict[str, Any], source: str = "<scene>", base_dir: Path | None = None) -> Scene:
     """Validate a raw scene dict into a :class:`Scene` (``raw`` is not modified).
+
+    ``[frames.*]`` and ``[variants.*]`` tables are checked, not applied: :func:`load_scene`
+    applies them.
 
     Raises
     ------
@@ -586,7 +601,13 @@ def _find_mesh_file(name: str, base_dir: Path) -> Path:
 
 
 def toml_value(v: Any) -> str:
-    """One value as TOML text (array, string, number, boolean)."""
+    """One value as TOML text (array, string, number, boolean).
+
+    Raises
+    ------
+    TypeError
+        For any other type (a table, ``None``).
+    """
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, int | float):

@@ -25,28 +25,63 @@ _STEP = ("dt", "courant")
 
 
 def flatten(table: dict[str, Any], where: str) -> Layer:
-    """A table of dotted keys (nested tables read as their leaves) as one layer."""
+    """A table of dotted keys as one layer (nested tables are read as their leaves).
+
+    Parameters
+    ----------
+    table:
+        ``{"flow.rtol": 1e-6}``, ``{"flow": {"rtol": 1e-6}}`` or a mix.
+    where:
+        The table's name in messages (e.g. ``"variants.small"``).
+
+    Returns
+    -------
+    Layer
+        ``(parts, value, where)`` per leaf, in the table's order.
+
+    Raises
+    ------
+    SceneError
+        For an empty part of a key (``"flow..rtol"``) or a key given twice.
+    """
     out: Layer = []
+    seen: set[tuple[str, ...]] = set()
     for k, v in table.items():
         parts = [p.strip() for p in str(k).split(".")]
         if any(not p for p in parts):
             raise SceneError(f"{where}.{k}: bad key")
         if isinstance(v, dict) and v:
-            for sub, val, _ in flatten(v, f"{where}.{k}"):
-                out.append(([*parts, *sub], val, f"{where}.{'.'.join([*parts, *sub])}"))
+            leaves = [([*parts, *sub], val) for sub, val, _ in flatten(v, f"{where}.{k}")]
         else:
-            out.append((parts, v, f"{where}.{'.'.join(parts)}"))
+            leaves = [(parts, v)]
+        for full, val in leaves:
+            name = f"{where}.{'.'.join(full)}"
+            if tuple(full) in seen:
+                raise SceneError(f"{name}: given twice")
+            seen.add(tuple(full))
+            out.append((full, val, name))
     return out
 
 
 def check_frames(raw: dict[str, Any]) -> dict[str, Layer]:
-    """The scene's ``[frames.*]`` tables as layers, each key checked against the schema.
+    """The scene's ``[frames.*]`` tables as layers, each key and value checked.
+
+    Parameters
+    ----------
+    raw:
+        The scene as read from TOML (not modified).
+
+    Returns
+    -------
+    dict
+        Frame name → its layer (:func:`flatten`).
 
     Raises
     ------
     SceneError
         For a frame that ``method.frame`` cannot take, a key outside the schema's
-        sections, or a table that sets ``method.frame`` itself.
+        sections, a value the key refuses (named ``frames.FRAME.section.key``), or a
+        table that sets ``method.frame`` itself.
     """
     frames = raw.get("frames", {})
     if not isinstance(frames, dict):
@@ -56,25 +91,29 @@ def check_frames(raw: dict[str, Any]) -> dict[str, Layer]:
     for name, table in frames.items():
         try:
             known(f"frames.{name}", name)
-        except SceneError:
-            raise SceneError(
-                f"frames.{name}: not a frame (method.frame is one of lagrangian, eulerian, "
-                "characteristic)"
-            ) from None
+        except SceneError as exc:
+            raise SceneError(f"{exc} (a frame table is named by method.frame)") from None
         if not isinstance(table, dict):
             raise SceneError(f"frames.{name}: expected a table of dotted keys")
         layer = flatten(table, f"frames.{name}")
-        for parts, _, where in layer:
+        for parts, value, where in layer:
             if parts[:2] == ["method", "frame"]:
                 raise SceneError(f"{where}: a frame table cannot choose the frame")
             if len(parts) != 2 or parts[0] not in SCHEMA or parts[1] not in SCHEMA[parts[0]]:
-                raise SceneError(f"{where}: not a key of the scene's sections (e.g. flow.rtol)")
+                raise SceneError(
+                    f"{where}: not a key of the scene's sections (e.g. flow.rtol; "
+                    "[phases] and [params] cannot be set per frame)"
+                )
+            SCHEMA[parts[0]][parts[1]].check(where, value)
         out[name] = layer
     return out
 
 
 def _frame(raw: dict[str, Any], later: list[Layer]) -> Any:
-    frame = raw.get("method", {}).get("frame", SCHEMA["method"]["frame"].default)
+    method = raw.get("method")
+    frame = SCHEMA["method"]["frame"].default
+    if isinstance(method, dict):
+        frame = method.get("frame", frame)
     for layer in later:
         for parts, value, _ in layer:
             if parts == ["method", "frame"]:
@@ -99,7 +138,23 @@ def _step_keys(layer: Layer) -> set[str]:
 def apply_layers(raw: dict[str, Any], variant: Layer, sets: Layer) -> Layer:
     """Write the run's frame table, then ``variant``, then ``sets`` into ``raw`` (in place).
 
-    Returns the frame table's entries that the run keeps (those no later layer replaces).
+    Parameters
+    ----------
+    raw:
+        The scene as read from TOML; its ``[frames.*]`` tables stay in it.
+    variant, sets:
+        The layers of ``--variant`` and of ``--set`` (:func:`flatten`).
+
+    Returns
+    -------
+    Layer
+        The frame table's entries the run keeps (those no later layer replaces).
+
+    Raises
+    ------
+    SceneError
+        From :func:`check_frames`, or for a layer that writes into a key that is not
+        a table (``--set time.dt.x=1``).
     """
     frames = check_frames(raw)
     frame = _frame(raw, [variant, sets])

@@ -181,7 +181,8 @@ def test_velocity_correction_keeps_the_water(shared_tmp):
     assert mom["volume_change_max_water"] > max(0.05, 5.0 * vel["volume_change_max_water"])
 
 
-#: Rayleigh-Taylor's flow keys (the schema defaults) in place of the scene's own.
+#: Rayleigh-Taylor's flow keys (the schema defaults), spelled out: the scene's
+#: ``[frames.lagrangian]`` differs from them in the last two.
 FRAME_DEFAULTS = (
     'flow.pressure_step="increment"',
     'flow.density="level_set"',
@@ -220,7 +221,8 @@ def test_discrete_projection_keeps_the_water_particles(shared_tmp):
     """``flow.divergence_rtol = 0.05``: the frame's defaults keep the water particles' volume.
 
     Small variant (60 x 30, Courant 5, T = 3.33), the frame's defaults with the consistent
-    pass pressure as in the test above, whose particles lose 5.2 % of the water: the
+    pass pressure as in the test above (with the discrete projection: the scene's own
+    PFEM-2 keys), whose particles lose 5.2 % of the water: the
     approximate projection leaves the velocity that moves them weakly compressive at
     the density jump. The discrete projection (the rest of the weak divergence removed
     with the correction's own Schur complement) measured 0.44 % (0.28 % with 0.01;
@@ -314,11 +316,11 @@ def test_consistent_pass_pressure_costs_one_solve_and_bounds_the_air_source():
 def test_level_set_at_courant5_holds_but_drifts(shared_tmp):
     """Side by side at Courant 5 (40 x 20, T = 2): the level set holds, PFEM-2 is right.
 
-    Since ``flow.pressure_step = "total"`` the level-set frame no longer
-    diverges here (it did at Courant 2 with the incremental pressure). It
-    drifts instead: its front lags (max |Z - Z_MM| 0.32 against PFEM-2's
-    0.13-0.16) and its kinetic energy exceeds the potential energy released
-    by 26 % of it (PFEM-2: never above).
+    With ``flow.pressure_step = "total"`` (its frame table) the level-set frame
+    does not diverge here (it did at Courant 2 with the incremental pressure). It
+    drifts instead: its front lags (max |Z - Z_MM| 0.342 against PFEM-2's 0.179,
+    the scene's keys) and its kinetic energy exceeds the potential energy released
+    by 28 % of it (PFEM-2: never above).
     """
     small = ("mesh.cells=[40,20]", "time.t_end=0.108", "time.courant=5")
     lag = run(shared_tmp / "l", *small)

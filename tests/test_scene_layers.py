@@ -114,19 +114,44 @@ def test_resolved_scene_has_the_frame_keys_and_no_tables():
         ('[frames.eulerian]\n"method.frame" = "lagrangian"\n', ["frames.eulerian.method.frame"]),
         ("[frames]\neulerian = 3\n", ["frames.eulerian"]),
         ("frames = 3\n", ["frames"]),
-        ('[frames.lagrangian]\n"flow.rtol" = -1.0\n', ["flow.rtol"]),
+        ('[frames.lagrangian]\n"flow.rtol" = -1.0\n', ["frames.lagrangian.flow.rtol"]),
+        # a value is checked in every frame's table, not only the run's
+        (
+            '[frames.eulerian]\n"flow.pressure_step" = "totl"\n',
+            ["frames.eulerian.flow.pressure_step", "total"],
+        ),
+        (
+            '[frames.eulerian]\n"flow.rtol" = 1e-6\nflow.rtol = 1e-7\n',
+            ["frames.eulerian.flow.rtol", "twice"],
+        ),
+        (
+            '[frames.eulerian]\n"phases.fluid.density" = 2.0\n',
+            ["frames.eulerian.phases.fluid.density"],
+        ),
+        ('method = "lagrangian"\n', ["method", "table"]),
+        ("variants = 3\n", ["variants"]),
     ],
 )
 def test_bad_frame_tables(tmp_path, extra, needles):
     # the TOML text must come before any table of BASE's to be top-level for `frames = 3`
     p = tmp_path / "scene.toml"
-    p.write_text(extra + BASE if extra.startswith("frames =") else BASE + extra, encoding="utf-8")
+    top = not extra.startswith("[")
+    no_method = BASE.replace('[method]\nframe = "lagrangian"\n', "")
+    p.write_text(extra + no_method if top else BASE + extra, encoding="utf-8")
+    variant = "v" if extra.startswith("variants") else None
     with pytest.raises(SceneError) as exc:
-        load_scene(p)
+        load_scene(p, variant=variant)
     for n in needles:
         assert n in str(exc.value), (n, str(exc.value))
     res = subprocess.run(
-        [sys.executable, "-m", "pfem2x", "check", str(p)],
+        [
+            sys.executable,
+            "-m",
+            "pfem2x",
+            "check",
+            str(p),
+            *(["--variant", variant] if variant else []),
+        ],
         capture_output=True,
         text=True,
         timeout=300,
@@ -144,12 +169,29 @@ def test_check_names_the_frame_keys_the_run_takes():
     sc = load_scene("dam-break", ["method.frame=eulerian", "time.dt=0.001"])
     assert sc.frame_keys == ('flow.pressure_step = "total"',)
     res = subprocess.run(
-        [sys.executable, "-m", "pfem2x", "check", "dam-break", "--set", "flow.rtol=1e-9"],
+        [
+            sys.executable,
+            "-m",
+            "pfem2x",
+            "check",
+            "dam-break",
+            "--set",
+            "flow.divergence_rtol=0.01",
+        ],
         capture_output=True,
         text=True,
         timeout=300,
     )
     assert res.returncode == 0, res.stderr
-    assert res.stdout.strip().endswith(
-        '[frames.lagrangian]: flow.pass_pressure = "consistent", flow.divergence_rtol = 0.05'
-    ), res.stdout
+    assert res.stdout.strip().endswith('[frames.lagrangian]: flow.pass_pressure = "consistent"')
+
+
+def test_set_of_a_table_sets_its_leaves_and_frames_are_not_set():
+    sc = load_scene("dam-break", ['method={frame="eulerian"}'])
+    assert sc.method.frame == "eulerian" and sc.flow.pressure_step == "total"
+    assert sc.method.particles_per_cell == 8  # the rest of [method] stays
+    sc = load_scene("dam-break", ["flow={rtol=1e-6}"])
+    assert sc.flow.rtol == 1e-6 and sc.flow.divergence_rtol == 0.05
+    for bad in ("frames.lagrangian.flow.rtol=1e-3", "variants.small.mesh.cells=[4,2]"):
+        with pytest.raises(SceneError, match="read from the scene file only"):
+            load_scene("dam-break", [bad])
