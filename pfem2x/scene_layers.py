@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from pfem2x.scene_schema import SCHEMA, SceneError
+from pfem2x.scene_schema import FRAME_KEYS, SCHEMA, SceneError
 
 __all__ = ["Layer", "apply_layers", "check_frames", "flatten"]
 
@@ -105,8 +105,21 @@ def check_frames(raw: dict[str, Any]) -> dict[str, Layer]:
                     "[phases] and [params] cannot be set per frame)"
                 )
             SCHEMA[parts[0]][parts[1]].check(where, value)
+            _read_by(raw, name, ".".join(parts), where)
         out[name] = layer
     return out
+
+
+def _read_by(raw: dict[str, Any], frame: str, key: str, where: str) -> None:
+    """Refuse a frame table's key that only other frames of the scene's physics read."""
+    scene = raw.get("scene")
+    physics = scene.get("physics", "transport") if isinstance(scene, dict) else "transport"
+    frames = FRAME_KEYS.get(physics, {}) if isinstance(physics, str) else {}
+    readers = [f for f, keys in frames.items() if key in keys]
+    if readers and frame not in readers:
+        raise SceneError(
+            f"{where}: the {frame} frame does not read it (read by: {', '.join(readers)})"
+        )
 
 
 def _frame(raw: dict[str, Any], later: list[Layer]) -> Any:

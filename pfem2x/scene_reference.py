@@ -73,12 +73,12 @@ def schema_markdown() -> str:
         "a function or constant name). `[frames.FRAME]` (`lagrangian`, `eulerian`,",
         '`characteristic`): dotted keys (`"flow.pressure_step" = "total"`) applied when',
         "`method.frame` is FRAME, however it was chosen; each key must be one of the sections'",
-        "keys above (not `[phases]` or `[params]`), every table's values are checked, and a",
-        "frame table cannot set `method.frame`. `[variants.NAME]`: dotted keys applied by",
-        "`--variant NAME`. Order: the scene's sections, the run's frame table, the variant,",
-        "then every `--set` (a later layer wins; one that sets only one of `time.dt` and",
-        "`time.courant` replaces the other; a `--set` of a table sets its keys). Neither kind",
-        "of table can be changed by `--set`.",
+        "keys above (not `[phases]` or `[params]`) that the frame reads (the table below),",
+        "every table's values are checked, and a frame table cannot set `method.frame`.",
+        "`[variants.NAME]`: dotted keys applied by `--variant NAME`. Order: the scene's",
+        "sections, the run's frame table, the variant, then every `--set` (a later layer wins;",
+        "one that sets only one of `time.dt` and `time.courant` replaces the other; a `--set`",
+        "of a table sets its keys). Neither kind of table can be changed by `--set`.",
         "",
     ]
     return "\n".join(lines + _frames_markdown())

@@ -128,6 +128,10 @@ def test_resolved_scene_has_the_frame_keys_and_no_tables():
             '[frames.eulerian]\n"phases.fluid.density" = 2.0\n',
             ["frames.eulerian.phases.fluid.density"],
         ),
+        (
+            '[frames.eulerian]\n"flow.pass_pressure" = "consistent"\n',
+            ["frames.eulerian.flow.pass_pressure", "read by: lagrangian"],
+        ),
         ('method = "lagrangian"\n', ["method", "table"]),
         ("variants = 3\n", ["variants"]),
     ],
