@@ -621,7 +621,6 @@ def toml_value(v: Any) -> str:
 
 def dump_toml(data: Mapping[str, Any]) -> str:
     """Write a (nested) dict as TOML text (tables, arrays, strings, numbers, booleans)."""
-    val = toml_value
     lines: list[str] = []
 
     def table(prefix: str, d: Mapping[str, Any]) -> None:
@@ -630,7 +629,7 @@ def dump_toml(data: Mapping[str, Any]) -> str:
         if prefix and (scalars or not subs):
             lines.append(f"[{prefix}]")
         for k, v in scalars.items():
-            lines.append(f"{k} = {val(v)}")
+            lines.append(f"{k} = {toml_value(v)}")
         if scalars:
             lines.append("")
         for k, v in subs.items():
