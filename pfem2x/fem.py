@@ -37,6 +37,24 @@ def assemble_vector(L: Any, b: Any, a: Any | None = None, bcs: list | None = Non
     return compat.assemble_vector(L, b, a, bcs)
 
 
+#: BoomerAMG options set unless the user's PETSc options name them (hypre's choice
+#: for 2D/3D Poisson-type operators: HMIS coarsening, extended+i interpolation, one
+#: level of aggressive coarsening; docs/BENCHMARKS.md, "The pressure solves' AMG")
+HYPRE_OPTIONS = {
+    "pc_hypre_boomeramg_coarsen_type": "HMIS",
+    "pc_hypre_boomeramg_interp_type": "ext+i",
+    "pc_hypre_boomeramg_agg_nl": "1",
+}
+
+
+def _hypre_defaults() -> None:
+    """Put :data:`HYPRE_OPTIONS` into PETSc's options database where the user did not."""
+    opts = PETSc.Options()
+    for key, value in HYPRE_OPTIONS.items():
+        if not opts.hasName(key):
+            opts[key] = value
+
+
 class LinearSolver:
     """A PETSc KSP with a pfem2x-chosen method, counted solves.
 
@@ -76,6 +94,7 @@ class LinearSolver:
                 if pre == "hypre":
                     pc.setType("hypre")
                     pc.setHYPREType("boomeramg")
+                    _hypre_defaults()
                 elif pre == "gamg":
                     pc.setType("gamg")
                 elif pre == "jacobi":

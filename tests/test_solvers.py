@@ -1,0 +1,87 @@
+"""Linear solvers: pfem2x's BoomerAMG options, and the user's PETSc options winning over them.
+
+The options must reach hypre: aggressive coarsening changes the iteration count of a CG
+solve of a Poisson problem, so the counts with pfem2x's choice and with the user's
+``agg_nl 0`` differ, and the latter equals that of PETSc's defaults.
+"""
+
+import pytest
+import ufl
+
+from pfem2x import compat, fem
+from pfem2x.compat import MPI, PETSc
+
+pytestmark = pytest.mark.skipif(not compat.has_hypre(), reason="PETSc without hypre")
+
+KEYS = tuple(fem.HYPRE_OPTIONS)
+
+
+@pytest.fixture
+def clean_options():
+    """Take pfem2x's hypre keys out of PETSc's options database, before and after."""
+    opts = PETSc.Options()
+    saved = {k: opts.getString(k) for k in KEYS if opts.hasName(k)}
+    for k in KEYS:
+        opts.delValue(k)
+    yield opts
+    for k in KEYS:
+        opts.delValue(k)
+    for k, v in saved.items():
+        opts[k] = v
+
+
+def poisson(n: int = 64):
+    """A Poisson operator with a small mass shift (SPD) and a right-hand side of ones."""
+    mesh = compat.dolfinx.mesh.create_unit_square(MPI.COMM_SELF, n, n)
+    V = compat.function_space(mesh)
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    a = compat.form((ufl.inner(ufl.grad(u), ufl.grad(v)) + 1e-3 * u * v) * ufl.dx)
+    L = compat.form(v * ufl.dx)
+    A = compat.assemble_matrix(a)
+    b = compat.create_vector(L)
+    compat.assemble_vector(L, b)
+    return A, b
+
+
+def iterations(A, b) -> int:
+    solver = fem.LinearSolver(A, "cg", "hypre", rtol=1e-10)
+    x = b.duplicate()
+    try:
+        return solver.solve(b, x)
+    finally:
+        solver.destroy()
+        x.destroy()
+
+
+def test_pfem2x_options_are_set_and_reach_hypre(clean_options):
+    A, b = poisson()
+    ours = iterations(A, b)
+    for key, value in fem.HYPRE_OPTIONS.items():
+        assert clean_options.getString(key) == value
+    clean_options["pc_hypre_boomeramg_agg_nl"] = "0"
+    without_aggressive = iterations(A, b)
+    assert clean_options.getString("pc_hypre_boomeramg_agg_nl") == "0"
+    assert ours != without_aggressive
+
+
+def test_user_options_win(clean_options):
+    A, b = poisson()
+    clean_options["pc_hypre_boomeramg_coarsen_type"] = "Falgout"
+    clean_options["pc_hypre_boomeramg_interp_type"] = "classical"
+    clean_options["pc_hypre_boomeramg_agg_nl"] = "0"
+    users = iterations(A, b)
+    assert clean_options.getString("pc_hypre_boomeramg_coarsen_type") == "Falgout"
+    # PETSc's own defaults are the user's choice here: the same iterations
+    ksp = PETSc.KSP().create(MPI.COMM_SELF)
+    ksp.setOperators(A)
+    ksp.setType("cg")
+    ksp.setTolerances(rtol=1e-10, atol=1e-50, max_it=5000)
+    ksp.getPC().setType("hypre")
+    ksp.getPC().setHYPREType("boomeramg")
+    for k in KEYS:
+        clean_options.delValue(k)
+    x = b.duplicate()
+    ksp.solve(b, x)
+    assert ksp.getConvergedReason() > 0
+    assert ksp.getIterationNumber() == users
+    ksp.destroy()
