@@ -37,9 +37,9 @@ def assemble_vector(L: Any, b: Any, a: Any | None = None, bcs: list | None = Non
     return compat.assemble_vector(L, b, a, bcs)
 
 
-#: BoomerAMG options set unless the user's PETSc options name them (hypre's choice
-#: for 2D/3D Poisson-type operators: HMIS coarsening, extended+i interpolation, one
-#: level of aggressive coarsening; docs/BENCHMARKS.md, "The pressure solves' AMG")
+#: BoomerAMG options set unless the user's PETSc options name them: HMIS coarsening,
+#: extended+i interpolation, one level of aggressive coarsening (cheaper set-ups and
+#: V-cycles for the pressure's Laplacian; docs/BENCHMARKS.md, "The pressure solves' AMG")
 HYPRE_OPTIONS = {
     "pc_hypre_boomeramg_coarsen_type": "HMIS",
     "pc_hypre_boomeramg_interp_type": "ext+i",
