@@ -47,10 +47,10 @@ HYPRE_OPTIONS = {
 }
 
 
-def _hypre_defaults() -> None:
-    """Put :data:`HYPRE_OPTIONS` into PETSc's options database where the user did not."""
+def _options_unless_named(options: dict[str, str]) -> None:
+    """Put ``options`` into PETSc's options database where the user did not name them."""
     opts = PETSc.Options()
-    for key, value in HYPRE_OPTIONS.items():
+    for key, value in options.items():
         if not opts.hasName(key):
             opts[key] = value
 
@@ -94,7 +94,7 @@ class LinearSolver:
                 if pre == "hypre":
                     pc.setType("hypre")
                     pc.setHYPREType("boomeramg")
-                    _hypre_defaults()
+                    _options_unless_named(HYPRE_OPTIONS)
                 elif pre == "gamg":
                     pc.setType("gamg")
                 elif pre == "jacobi":
@@ -105,9 +105,7 @@ class LinearSolver:
             # classical Gram-Schmidt without re-orthogonalisation broke down (PETSc reason
             # -5) in the rising bubble's momentum solve at 50 x the capillary step limit;
             # re-orthogonalise when the test sees a loss (a user's PETSC_OPTIONS win)
-            opts = PETSc.Options()
-            if not opts.hasName("ksp_gmres_cgs_refinement_type"):
-                opts["ksp_gmres_cgs_refinement_type"] = "refine_ifneeded"
+            _options_unless_named({"ksp_gmres_cgs_refinement_type": "refine_ifneeded"})
         self.ksp.setFromOptions()
         self.last_iterations = 0
 
