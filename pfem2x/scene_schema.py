@@ -361,6 +361,13 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "and substep_gradient) times this: its move only estimates the end of the step, "
             "the second pass moves the particles; 1: the second pass's limits",
         ),
+        "predictor_particles": Key(
+            number(0.0, 1.0, lo_open=True),
+            1.0,
+            doc="PFEM-2, extra_pass: the share of each cell's particles that the first pass "
+            "moves (at least one per cell): its move only estimates the end of the step, "
+            "the second pass moves every particle; 1: all",
+        ),
         "viscous_step": Key(
             choice("sdirk2", "euler"),
             "sdirk2",
@@ -615,6 +622,7 @@ FRAME_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
             "flow.pass_splits",
             "flow.predictor",
             "flow.predictor_substeps",
+            "flow.predictor_particles",
             "flow.viscous_step",
             "flow.explicit_pressure",
             "flow.pass_pressure",

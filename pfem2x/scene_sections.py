@@ -208,6 +208,7 @@ class FlowSection(Section):
     pass_splits: int
     predictor: str
     predictor_substeps: float
+    predictor_particles: float
     viscous_step: str
     pic_fraction: float
     pic_fraction_light: float

@@ -307,6 +307,64 @@ def test_predictor_substeps_lengthen_the_first_pass_only(monkeypatch):
     assert 0.0 < du < 0.02 * u, (du, u)  # measured: 0.78 of the sub-steps, du 0.0034 u
 
 
+def test_predictor_drop_keeps_a_share_of_every_cell():
+    """``_predictor_drop``: 1 + floor((n - 1) s) of a cell's n particles (ceil(n s): s = 1/k)."""
+    from pfem2x.physics.flow.passes import _predictor_drop
+
+    rng = np.random.default_rng(3)
+    counts = np.array([0, 1, 2, 3, 4, 7, 8, 9, 16])
+    cells = rng.permutation(np.repeat(np.arange(len(counts)), counts)).astype(np.int32)
+    for share in (1.0, 0.5, 0.25, 0.3):
+        drop = _predictor_drop(cells, len(counts), share)
+        if share in (0.5, 0.25):  # every 1/s-th: ceil(n s)
+            assert np.array_equal(np.bincount(cells[~drop], minlength=len(counts)),
+                                  np.ceil(counts * share))  # fmt: skip
+        kept = np.bincount(cells[~drop], minlength=len(counts))
+        want = np.where(counts > 0, 1 + np.floor((counts - 1) * share), 0)
+        assert np.array_equal(kept, want), (share, kept, want)
+    # the kept ones of a cell are every second in storage order (share 1/2)
+    drop = _predictor_drop(np.zeros(6, dtype=np.int32), 1, 0.5)
+    assert drop.tolist() == [False, True, False, True, False, True]
+
+
+@pytest.mark.mpi
+def test_predictor_particles_thin_the_first_pass_only(monkeypatch):
+    """``flow.predictor_particles = 1/2``: the first pass moves half the particles.
+
+    Every step's first move gets about half of the cloud, the second pass moves
+    every particle from the start of the step, and the step's result stays close
+    to the default's.
+    """
+    from pfem2x import particles as P
+
+    moved: list[int] = []
+    advect = P.advect
+
+    def spy(cloud, *args, **kw):
+        moved.append(cloud.global_count())
+        return advect(cloud, *args, **kw)
+
+    monkeypatch.setattr(P, "advect", spy)
+    runs = {}
+    for share in (1.0, 0.5):
+        moved.clear()
+        s, _ = solver_for(f"flow.predictor_particles={share}")
+        dt, t, start = 0.5, 0.0, []
+        for _ in range(3):
+            start.append(s.cloud().global_count())
+            s.step(t, dt)
+            t += dt
+        assert len(moved) == 6, moved  # two moves per step
+        for n0, first, second in zip(start, moved[0::2], moved[1::2], strict=True):
+            lo, hi = (n0, n0) if share == 1.0 else (0.5 * n0, 0.6 * n0)
+            assert lo <= first <= hi, (share, first, n0)
+            assert second == n0, (second, n0)
+        runs[share] = s.u.x.array.copy()
+    du = np.abs(runs[0.5] - runs[1.0]).max()
+    u = np.abs(runs[1.0]).max()
+    assert 0.0 < du < 0.02 * u, (du, u)  # measured: 0.005 u (1 and 2 ranks)
+
+
 VORTEX = """
 [scene]
 name = "vortex"

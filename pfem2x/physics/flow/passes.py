@@ -42,6 +42,12 @@ first pass, 12 % less CPU time per run, the tips within 0.0014 d of F = 1 (three
 seeds), the largest difference to Courant 0.5 0.0101 d instead of 0.00996 d
 (docs/BENCHMARKS.md, "Particles per cell, Courant number and seed").
 
+``flow.predictor_particles = s`` (default 1) lets the first pass move only a share
+:math:`s` of each cell's particles (at least one; :func:`_predictor_drop`): that move
+only estimates the end of the step (:math:`u^{(1)}`, :math:`a^{(1)}`, the level set), and
+the second pass moves every particle from the start of the step as before
+(docs/BENCHMARKS.md, "The first pass's particles").
+
 The second pass's viscous predictor (``flow.viscous_step = "sdirk2"``) is the two-stage
 L-stable SDIRK method (:meth:`TwoPasses._viscous_sdirk2`), second order in
 :math:`\Delta t`, instead of backward Euler, whose first-order decay the particles
@@ -83,11 +89,29 @@ import numpy as np
 from pfem2x import compat
 from pfem2x import particles as P
 from pfem2x.compat import MPI
+from pfem2x.particles import _kernels as K
 
 __all__ = ["SDIRK_GAMMA", "TwoPasses"]
 
 #: the stage coefficient of the two-stage L-stable SDIRK method, 1 - 1/sqrt(2)
 SDIRK_GAMMA = 1.0 - 0.5 * np.sqrt(2.0)
+
+
+def _predictor_drop(cells: np.ndarray, n_cells: int, share: float) -> np.ndarray:
+    r"""The particles the first pass leaves out (``flow.predictor_particles = share``).
+
+    In each cell the particles in storage order keep ranks :math:`r` with
+    :math:`r = 0` or :math:`\lfloor r s\rfloor > \lfloor (r - 1) s\rfloor`: the first
+    and then about every :math:`1/s`-th, :math:`1 + \lfloor (n - 1) s\rfloor` of a cell's
+    :math:`n` (:math:`\lceil n s\rceil` for :math:`s = 1/k`).
+    Returns a boolean mask of the particles to drop.
+    """
+    order, offsets = K.counting_sort(cells, n_cells)
+    rank = np.arange(len(order)) - offsets[cells[order]]
+    keep = (rank == 0) | (np.floor(rank * share) > np.floor((rank - 1) * share))
+    drop = np.empty(len(order), dtype=bool)
+    drop[order] = ~keep
+    return drop
 
 
 class TwoPasses:
@@ -125,6 +149,9 @@ class TwoPasses:
         sdirk = blends and self.viscous_sdirk and self.viscous and self.capillary is None
         with self.timer("particles"):
             saved = c.extract()
+            share = float(self.scene.flow.predictor_particles)
+            if share < 1.0:
+                c.remove(_predictor_drop(c.cells, c.pmesh.n_cells, share))
             guess = self._end_estimate(dt) if blends else None
             self._u_old.x.array[:] = self.u.x.array
             p_old = self.p.x.array.copy()
