@@ -20,7 +20,9 @@ against Tryggvason time tau):
 Every history is interpolated linearly in tau at 1, 1.5, 2, 2.5 (a source that does
 not reach a time gets no value there). ``d2`` / ``d25`` = the largest ``|y - y_ref|``
 over both tips up to tau = 2 / 2.5 against ``--ref`` (default: the stored
-``r100_dt0.001``, interFoam 100 x 400 at dt = 0.001). Prints a markdown table; ``--md`` /
+``r100_dt0.001``, interFoam 100 x 400 at dt = 0.001); ``a2`` / ``a25`` the same at every
+time of the source's own history (the reference interpolated there, within its range),
+which for a ``pfem2x run`` are its output times. Prints a markdown table; ``--md`` /
 ``--json`` also write it.
 """
 
@@ -52,6 +54,17 @@ def _pair(text: str, flag: str) -> tuple[str, Path]:
     return name, Path(path)
 
 
+def _history(
+    ts: np.ndarray, spike: np.ndarray, tb: np.ndarray, bubble: np.ndarray
+) -> dict[str, Any]:
+    """The tips at 1 ... 2.5 and the whole history (``_hist``, not written to JSON)."""
+    return {
+        "spike": _at(ts, spike),
+        "bubble": _at(tb, bubble),
+        "_hist": {"spike": (ts, spike), "bubble": (tb, bubble)},
+    }
+
+
 def _at(tau: np.ndarray, y: np.ndarray) -> list[float | None]:
     tol = 1e-6  # the last output of a run to tau = 2.5 may be at 2.4999999
     return [float(np.interp(t, tau, y)) if tau[0] <= t <= tau[-1] + tol else None for t in TAUS]
@@ -69,7 +82,7 @@ def stored(folder: Path, col: str) -> dict[str, Any]:
     tau = np.array([float(r["tT"]) for r in rows])
     sp = np.array([float(r[f"{col}:spike"]) for r in rows])
     bu = np.array([float(r[f"{col}:bubble"]) for r in rows])
-    return {"code": "interFoam (stored)", "spike": _at(tau, sp), "bubble": _at(tau, bu)}
+    return {"code": "interFoam (stored)", **_history(tau, sp, tau, bu)}
 
 
 def foam_case(path: Path) -> dict[str, Any]:
@@ -79,11 +92,7 @@ def foam_case(path: Path) -> dict[str, Any]:
         _fail(f"--case: {f} not found (run benchmarks/interfoam_case.py tips on the case)")
     a = np.genfromtxt(f, delimiter=",", names=True)
     tau = a["tau"] if "tau" in a.dtype.names else a["tT"]
-    return {
-        "code": "interFoam",
-        "spike": _at(tau, a["y_spike"]),
-        "bubble": _at(tau, a["y_bubble"]),
-    }
+    return {"code": "interFoam", **_history(tau, a["y_spike"], tau, a["y_bubble"])}
 
 
 def pfem2x_run(path: Path) -> dict[str, Any]:
@@ -98,8 +107,7 @@ def pfem2x_run(path: Path) -> dict[str, Any]:
     fa, ri = np.array(m["tip_falling"]), np.array(m["tip_rising"])
     return {
         "code": "pfem2x " + ("PFEM-2" if s.get("frame") == "lagrangian" else "level set"),
-        "spike": _at(fa[:, 0], fa[:, 1]),
-        "bubble": _at(ri[:, 0], ri[:, 1]),
+        **_history(fa[:, 0], fa[:, 1], ri[:, 0], ri[:, 1]),
         "steps": s.get("steps"),
         "dt": s.get("dt") if not s.get("adaptive_dt") else f"{s.get('dt_min'):.2g}..",
         "courant_max": m.get("courant_max"),
@@ -109,7 +117,7 @@ def pfem2x_run(path: Path) -> dict[str, Any]:
 
 
 def differences(row: dict[str, Any], ref: dict[str, Any]) -> None:
-    """Add ``d2`` / ``d25``: largest tip difference to ``ref`` up to tau = 2 / 2.5."""
+    """Add ``d2`` / ``d25`` (at 1 ... 2.5) and ``a2`` / ``a25`` (at the row's own times)."""
     for key, upto in (("d2", 2.0), ("d25", 2.5)):
         diffs = [
             abs(row[k][i] - ref[k][i])
@@ -117,6 +125,16 @@ def differences(row: dict[str, Any], ref: dict[str, Any]) -> None:
             for i, t in enumerate(TAUS)
             if t <= upto and row[k][i] is not None and ref[k][i] is not None
         ]
+        row[key] = max(diffs) if diffs else None
+    tol = 1e-6
+    for key, upto in (("a2", 2.0), ("a25", 2.5)):
+        diffs = []
+        for k in ("spike", "bubble"):
+            t, y = row["_hist"][k]
+            tr, yr = ref["_hist"][k]
+            sel = (t <= upto + tol) & (t >= tr[0]) & (t <= tr[-1] + tol)
+            if sel.any():
+                diffs.append(float(np.max(np.abs(y[sel] - np.interp(t[sel], tr, yr)))))
         row[key] = max(diffs) if diffs else None
 
 
@@ -130,12 +148,13 @@ def table(rows: dict[str, dict[str, Any]], ref: str) -> str:
 
     head = ["source", "code", "steps", "Δt", "Co max", "CPU s"]
     head += [f"τ={t:g} spike / bubble" for t in TAUS] + [f"Δ≤2 vs {ref}", "Δ≤2.5"]
+    head += ["all times ≤2", "≤2.5"]
     out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for name, r in rows.items():
         cells = [name, r["code"], f(r.get("steps")), f(r.get("dt"), 4)]
         cells += [f(r.get("courant_max"), 2), f(r.get("cpu_s"), 0)]
         cells += [f"{f(r['spike'][i])} / {f(r['bubble'][i])}" for i in range(len(TAUS))]
-        cells += [f(r.get("d2")), f(r.get("d25"))]
+        cells += [f(r.get("d2")), f(r.get("d25")), f(r.get("a2"), 4), f(r.get("a25"), 4)]
         out.append("| " + " | ".join(cells) + " |")
     return "\n".join(out) + "\n"
 
@@ -170,7 +189,8 @@ def main(argv: list[str] | None = None) -> None:
     if a.md:
         a.md.write_text(md)
     if a.json:
-        a.json.write_text(json.dumps({"taus": TAUS, "ref": a.ref, "rows": rows}, indent=1))
+        out = {n: {k: v for k, v in r.items() if k != "_hist"} for n, r in rows.items()}
+        a.json.write_text(json.dumps({"taus": TAUS, "ref": a.ref, "rows": out}, indent=1))
 
 
 if __name__ == "__main__":
