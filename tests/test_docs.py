@@ -81,6 +81,10 @@ def test_rt_reference_table_is_made_from_its_data(tmp_path, capsys):
     assert set(ours) == set(names) and set(ours) <= set(committed)
     for n in names:  # the tip cells (columns 7-10), not the differences to another --ref
         assert ours[n].split("|")[7:11] == committed[n].split("|")[7:11], n
+    # the differences at every output time: none to the reference itself, some to the others
+    alltimes = {n: [c.strip() for c in ours[n].split("|")[13:15]] for n in names}
+    assert alltimes["ls_aco0.5"] == ["0.0000", "0.0000"]
+    assert all(float(v) > 0.0 for n in names if n != "ls_aco0.5" for v in alltimes[n] if v != "–")
     capsys.readouterr()
     with pytest.raises(SystemExit) as e:
         mod.main(["--stored", "--ref", "x", "--run", f"x={tmp_path / 'none'}"])
