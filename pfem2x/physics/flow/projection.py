@@ -39,6 +39,13 @@ smooth flow the residual stalls at a few per cent, and GMRES keeps its best iter
 balanced state (no weak divergence) is left as it is. One more matrix (:math:`G`, with
 the Laplacian) and one GMRES solve per pressure step (docs/RESULTS.md, "Where the water particles'
 volume goes").
+
+With a cellwise (DG0) density (the Lagrangian frame's ``cell_density``) and a closed box,
+the Laplacian, :math:`G` and the lumped mass :math:`M_\rho` are re-assembled from their
+element tensors as sparse products (:mod:`pfem2x.cellwise`), the increment's right-hand
+side is :math:`-\Delta t^{-1} D u^*` with :math:`D` assembled once, and with the
+discrete projection the correction is :math:`u = u^* - \Delta t\,PM^{-1}G\,\delta p`
+(its own matrix): the same operators to round-off, without a form assembly per pass.
 """
 
 from __future__ import annotations
@@ -50,8 +57,10 @@ from typing import Any
 import numpy as np
 import ufl
 
-from pfem2x import compat, fem
+from pfem2x import cellwise, compat, fem
+from pfem2x.cellwise import CellwiseForm
 from pfem2x.compat import PETSc
+from pfem2x.mesh import geometry_table
 
 __all__ = ["PressureProjection"]
 
@@ -87,6 +96,15 @@ class PressureProjection:
     force_in_projection
         The body force ``f_body`` enters the pressure equation and the correction
         (with ``incremental = False``; see the module docstring).
+    divergence_rtol
+        > 0: the discrete projection to this tolerance (see the module docstring).
+    cell_density
+        ``rho`` is the DG0 function whose owned cells' values this returns: the
+        operators that change with it (the Laplacian, the lumped mass, the discrete
+        projection's gradient) are re-assembled as sparse products of their element
+        tensors (:mod:`pfem2x.cellwise`; closed boxes, affine simplices), and the
+        increment's right-hand side and the correction of the discrete projection
+        are products with its matrices. ``None``: every form by DOLFINx.
     """
 
     def __init__(
@@ -107,8 +125,10 @@ class PressureProjection:
         timer: Callable[[str], AbstractContextManager[None]],
         force_in_projection: bool = False,
         divergence_rtol: float = 0.0,
+        cell_density: Callable[[], np.ndarray] | None = None,
     ):
         self.bcs_u, self.bcs_p = bcs_u, bcs_p
+        self.dt_c = dt_c
         #: > 0: the discrete projection to this tolerance (see the module docstring)
         self.divergence_rtol = float(divergence_rtol)
         if self.divergence_rtol > 0.0 and (bcs_p or correction != "velocity"):
@@ -157,14 +177,50 @@ class PressureProjection:
         else:
             self.L_c = compat.form(ufl.dot(grad_dp, w) * dxq)
         self.b_c = compat.create_vector(self.L_c)
+        self.cell_density = cell_density
+        self._cellwise_forms(V, Q, gdim, dxq)
         if self.divergence_rtol > 0.0:
             self._discrete = _DiscreteProjection(V, Q, rho, dxq, self)
         #: iteration counts of the last solves, by equation
         self.iterations: dict[str, int] = {}
 
+    def _cellwise_forms(self, V: Any, Q: Any, gdim: int, dxq: Any) -> None:
+        """The operators re-assembled from :attr:`cell_density` (:mod:`pfem2x.cellwise`)."""
+        #: by name: "laplacian", "mass" and (discrete projection) "gradient"
+        self._cellwise: dict[str, CellwiseForm] = {}
+        #: the weak divergence D (int div(v) r), once: the increment's right-hand side
+        #: -D u*/dt without an assembly (the density-free right-hand side, closed boxes)
+        self.D: Any = None
+        mesh = V.mesh
+        if self.cell_density is None or self.bcs_p or not cellwise.is_affine_simplex(mesh):
+            return
+        table = geometry_table(mesh)
+        qd, vd = compat.dofmap_array(Q), compat.dofmap_array(V)
+        nq, nv = cellwise.local_size(Q), cellwise.local_size(V)
+        self._cellwise["laplacian"] = CellwiseForm(
+            *cellwise.p1_laplacian(table, qd), n_rows=nq, n_cols=nq
+        )
+        self._cellwise["mass"] = CellwiseForm(
+            *cellwise.p1_lumped_mass(table, vd, gdim), None, n_rows=nv
+        )
+        if self.divergence_rtol > 0.0:
+            self._cellwise["gradient"] = CellwiseForm(
+                *cellwise.p1_gradient(table, vd, qd, gdim), n_rows=nv, n_cols=nq
+            )
+        if not self.force_in_projection:
+            v, r = ufl.TrialFunction(V), ufl.TestFunction(Q)
+            self.D = fem.assemble_matrix(compat.form(ufl.div(v) * r * dxq), [])
+
+    def _inverse_density(self) -> np.ndarray:
+        """``1 / rho`` of the owned cells (the cellwise operators' coefficient)."""
+        return 1.0 / self.cell_density()
+
     def assemble_operator(self) -> None:
         """(Re-)assemble the pressure operator (its density may have changed)."""
-        self.A_p = fem.assemble_matrix(self.a_p, self.bcs_p, self.A_p)
+        if self.A_p is not None and "laplacian" in self._cellwise:
+            self._cellwise["laplacian"].matrix(self._inverse_density(), self.A_p)
+        else:
+            self.A_p = fem.assemble_matrix(self.a_p, self.bcs_p, self.A_p)
         if not self.bcs_p:
             self.nullspace = compat.constant_nullspace(self.A_p)
         if self.p_solver is None:
@@ -177,15 +233,25 @@ class PressureProjection:
     def solve(self, L: Any, x: Any) -> None:
         """Solve the pressure operator against the right-hand side form ``L`` into ``x``."""
         fem.assemble_vector(L, self.b_p, self.a_p, self.bcs_p)
+        self._solve_assembled(x)
+
+    def solve_increment(self) -> None:
+        """The pressure increment ``dp`` from the divergence of ``u_star``."""
+        if self.D is None:
+            self.solve(self.L_p, self.dp)
+            return
+        fem.COUNTERS["vector_assemblies"] += 1
+        self.D.mult(compat.petsc_vec(self.u_star), self.b_p)
+        self.b_p.scale(-1.0 / float(self.dt_c.value))
+        self._solve_assembled(self.dp)
+
+    def _solve_assembled(self, x: Any) -> None:
+        """Solve the pressure operator against :attr:`b_p` (assembled) into ``x``."""
         if self.nullspace is not None:
             self.nullspace.remove(self.b_p)
         with self.timer("solve"):
             self.iterations["pressure"] = self.p_solver.solve(self.b_p, compat.petsc_vec(x))
             x.x.scatter_forward()
-
-    def solve_increment(self) -> None:
-        """The pressure increment ``dp`` from the divergence of ``u_star``."""
-        self.solve(self.L_p, self.dp)
 
     def initial_pressure(self, p: Any) -> None:
         """Hydrostatic start into ``p``: ``div(rho^-1 (grad p - rho g)) = 0``."""
@@ -194,7 +260,10 @@ class PressureProjection:
 
     def assemble_mass(self) -> None:
         """The rho-weighted lumped mass of the current density into :attr:`b_mass`."""
-        fem.assemble_vector(self.L_mass, self.b_mass)
+        if "mass" in self._cellwise:
+            self._cellwise["mass"].vector(self.cell_density(), self.b_mass)
+        else:
+            fem.assemble_vector(self.L_mass, self.b_mass)
 
     def correct(self, u: Any, p: Any, dt: float, mass_ready: bool = False) -> None:
         """``u = u* - dt M^-1 grad(dp)`` with the velocity conditions; ``p += dp`` (or ``= dp``).
@@ -202,6 +271,15 @@ class PressureProjection:
         ``mass_ready``: :attr:`b_mass` already holds the lumped mass of the
         current density (``"momentum"`` correction).
         """
+        if self.D is not None and self._discrete is not None:
+            # P M^-1 G dp: the discrete projection's own gradient (P zeroes the rows the
+            # velocity's conditions set, as set_bc does after it)
+            fem.COUNTERS["vector_assemblies"] += 1
+            self._discrete.G.mult(compat.petsc_vec(self.dp), self._discrete.du)
+            n = len(self._discrete.du.array_r)
+            u.x.array[:n] = self.u_star.x.array[:n] - dt * self._discrete.du.array_r
+            self._finish_correction(u, p, dt)
+            return
         fem.assemble_vector(self.L_c, self.b_c)
         if self.correction == "velocity":
             mass = self.b_lumped
@@ -211,6 +289,10 @@ class PressureProjection:
             mass = self.b_mass
         n = len(self.b_c.array_r)
         u.x.array[:n] = self.u_star.x.array[:n] - dt * self.b_c.array_r / mass.array_r
+        self._finish_correction(u, p, dt)
+
+    def _finish_correction(self, u: Any, p: Any, dt: float) -> None:
+        """The velocity's conditions, the pressure's update and the discrete projection."""
         compat.set_bc(compat.petsc_vec(u), self.bcs_u)
         u.x.scatter_forward()
         if self.incremental:
@@ -241,7 +323,10 @@ class _DiscreteProjection:
     def __init__(self, V: Any, Q: Any, rho: Any, dxq: Any, proj: PressureProjection):
         v, r = ufl.TrialFunction(V), ufl.TestFunction(Q)
         q, w = ufl.TrialFunction(Q), ufl.TestFunction(V)
-        self.D = fem.assemble_matrix(compat.form(ufl.div(v) * r * dxq), [])
+        self.D = proj.D
+        if self.D is None:
+            self.D = fem.assemble_matrix(compat.form(ufl.div(v) * r * dxq), [])
+        self._proj = proj
         self.a_G = compat.form(ufl.dot(ufl.grad(q), w) / rho * dxq)
         self.G: Any = None
         self.minv = compat.create_vector(proj.L_mass)
@@ -256,7 +341,11 @@ class _DiscreteProjection:
 
     def assemble(self, A_p: Any, nullspace: Any, p_solver: fem.LinearSolver) -> None:
         """:math:`PM^{-1}G` of the current density; the solver on first use (collective)."""
-        self.G = fem.assemble_matrix(self.a_G, [], self.G)
+        gradient = self._proj._cellwise.get("gradient")
+        if self.G is not None and gradient is not None:
+            gradient.matrix(self._proj._inverse_density(), self.G)
+        else:
+            self.G = fem.assemble_matrix(self.a_G, [], self.G)
         self.G.diagonalScale(L=self.minv)  # P M^-1 G
         if self.ksp is not None:
             return

@@ -1,0 +1,172 @@
+r"""P1 operators linear in a cellwise-constant coefficient, re-assembled as one sparse product.
+
+A bilinear form :math:`\int k\,B(q, r)` on affine simplices, with :math:`k` constant in
+each cell (a DG0 density) and :math:`B` of P1 functions, is
+:math:`A(k) = \sum_c k_c E_c`: the element matrices :math:`E_c` of :math:`k = 1` do not
+change while :math:`k` does. :class:`CellwiseForm` computes them once, with the map from
+every element entry to its place in the matrix (a sparse matrix :math:`S` from the
+owned cells' coefficients to the rows of the assembled operator, local rows and ghost
+rows both), and re-assembles by :math:`S k` and one insertion into the PETSc matrix
+that DOLFINx created for the same form (its layout and local-to-global maps; the
+ghost rows' values go to their owners in PETSc's assembly, as in DOLFINx's own
+assembler). The same for a linear form into a ghosted vector.
+
+The element tensors of the operators the flow frames re-assemble every pass
+(:func:`p1_laplacian`, :func:`p1_gradient`, :func:`p1_lumped_mass`) are exact for
+P1 on affine cells, so a re-assembly equals DOLFINx's to round-off
+(``tests/test_cellwise.py`` compares both, serially and on 2 ranks).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from pfem2x import compat, fem
+from pfem2x.compat import PETSc
+
+__all__ = ["CellwiseForm", "p1_gradient", "p1_laplacian", "p1_lumped_mass"]
+
+
+def _gradients(table: Any) -> np.ndarray:
+    """``(n_owned, tdim+1, gdim)`` gradients of the P1 basis functions of each owned cell."""
+    inv = np.asarray(table.inv_map[: table.num_cells_owned])  # rows: grad lambda_1 .. lambda_d
+    return np.concatenate([-inv.sum(axis=1, keepdims=True), inv], axis=1)
+
+
+def p1_laplacian(table: Any, dofs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    r""":math:`\int \nabla q\cdot\nabla r` per owned cell: element matrices, rows, columns.
+
+    Parameters
+    ----------
+    table
+        The mesh's :class:`pfem2x.mesh.GeometryTable`.
+    dofs
+        The scalar P1 space's cell → dof table (:func:`pfem2x.compat.dofmap_array`).
+    """
+    n = table.num_cells_owned
+    grad = _gradients(table)
+    vol = np.asarray(table.volume[:n])
+    E = vol[:, None, None] * np.einsum("nig,njg->nij", grad, grad)
+    d = np.ascontiguousarray(dofs[:n])
+    return E, d, d
+
+
+def p1_gradient(
+    table: Any, vdofs: np.ndarray, qdofs: np.ndarray, bs: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    r""":math:`\int \nabla q\cdot w` (:math:`w` a P1 vector test function): element matrices.
+
+    Rows are the vector space's unrolled dofs (``bs * dof + component``), columns the
+    scalar space's dofs. :math:`\int_c \lambda_i = |c|/(d+1)` and
+    :math:`\nabla q` is constant in the cell.
+    """
+    n = table.num_cells_owned
+    grad = _gradients(table)  # (n, j, comp)
+    nv = grad.shape[1]
+    vol = np.asarray(table.volume[:n]) / nv
+    # E[c, (i, comp), j] = |c| / (d + 1) * d(lambda_j)/dx_comp
+    E = np.broadcast_to(
+        vol[:, None, None, None] * np.transpose(grad, (0, 2, 1))[:, None, :, :],
+        (n, nv, bs, nv),
+    ).reshape(n, nv * bs, nv)
+    rows = (bs * vdofs[:n, :, None] + np.arange(bs)[None, None, :]).reshape(n, nv * bs)
+    return np.ascontiguousarray(E), rows, np.ascontiguousarray(qdofs[:n])
+
+
+def p1_lumped_mass(table: Any, vdofs: np.ndarray, bs: int) -> tuple[np.ndarray, np.ndarray]:
+    r""":math:`\int w\cdot(1, \dots, 1)` per owned cell: element vectors and their rows."""
+    n = table.num_cells_owned
+    nv = vdofs.shape[1]
+    vol = np.asarray(table.volume[:n]) / nv
+    E = np.repeat(vol[:, None], nv * bs, axis=1)
+    rows = (bs * vdofs[:n, :, None] + np.arange(bs)[None, None, :]).reshape(n, nv * bs)
+    return E, rows
+
+
+class CellwiseForm:
+    r"""Re-assemble :math:`\sum_c k_c E_c` from the owned cells' coefficients :math:`k`.
+
+    Parameters
+    ----------
+    E
+        ``(n_owned, nr, nc)`` element matrices (``(n_owned, nr)``: element vectors) of
+        :math:`k = 1`.
+    rows, cols
+        ``(n_owned, nr)`` and ``(n_owned, nc)`` local unrolled row and column indices
+        (owned and ghost), as the PETSc matrix's local-to-global maps number them;
+        ``cols`` is ``None`` for a vector.
+    n_rows, n_cols
+        Local unrolled rows and columns (owned + ghosts).
+    """
+
+    def __init__(
+        self,
+        E: np.ndarray,
+        rows: np.ndarray,
+        cols: np.ndarray | None,
+        n_rows: int,
+        n_cols: int = 1,
+    ):
+        n = E.shape[0]
+        E = E.reshape(n, rows.shape[1], -1)
+        r = np.asarray(rows, dtype=np.int64)[:, :, None]
+        c = np.zeros((n, 1, 1), dtype=np.int64) if cols is None else np.asarray(cols)[:, None, :]
+        key = np.broadcast_to(r * n_cols + c, E.shape).ravel()
+        cell = np.broadcast_to(np.arange(n, dtype=np.int32)[:, None, None], E.shape).ravel()
+        order = np.argsort(key, kind="stable")
+        keys = key[order]
+        first = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]]) if len(keys) else keys[:0]
+        unique = keys[first]
+        #: the structure of the re-assembled rows (local indices, CSR)
+        self.indptr = np.searchsorted(unique // n_cols, np.arange(n_rows + 1)).astype(PETSc.IntType)
+        self.indices = (unique % n_cols).astype(PETSc.IntType)
+        #: the row of each entry (a vector's entries: one per row that an owned cell touches)
+        self._entry_rows = (unique // n_cols).astype(np.int64)
+        self.n_rows = n_rows
+        # S: the structure's entries from the cells' coefficients, (n_entries, n_owned)
+        ptr = np.append(first, len(keys)).astype(PETSc.IntType)
+        self._S = PETSc.Mat().createAIJ(
+            (len(unique), n),
+            csr=(ptr, cell[order].astype(PETSc.IntType), np.ascontiguousarray(E.ravel()[order])),
+            comm=PETSc.COMM_SELF,
+        )
+        self._k = PETSc.Vec().createSeq(n, comm=PETSc.COMM_SELF)
+        self._values = PETSc.Vec().createSeq(len(unique), comm=PETSc.COMM_SELF)
+
+    def _products(self, k: np.ndarray) -> np.ndarray:
+        self._k.array[:] = k
+        self._S.mult(self._k, self._values)
+        return self._values.array_r
+
+    def matrix(self, k: np.ndarray, A: Any) -> Any:
+        """``A = sum_c k_c E_c`` into ``A``, DOLFINx's matrix of the form (collective)."""
+        fem.COUNTERS["matrix_assemblies"] += 1
+        values = self._products(k)
+        A.zeroEntries()
+        A.setValuesLocalCSR(self.indptr, self.indices, values, addv=PETSc.InsertMode.ADD_VALUES)
+        A.assemble()
+        return A
+
+    def vector(self, k: np.ndarray, b: Any) -> Any:
+        """``b = sum_c k_c E_c`` into the ghosted vector ``b``, ghosts added to their owners."""
+        fem.COUNTERS["vector_assemblies"] += 1
+        values = self._products(k)
+        with b.localForm() as loc:
+            loc.set(0.0)
+            loc.array[self._entry_rows] = values
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        return b
+
+
+def local_size(V: Any) -> int:
+    """Unrolled local dofs (owned + ghosts) of a function space."""
+    imap = V.dofmap.index_map
+    return int(imap.size_local + imap.num_ghosts) * int(V.dofmap.index_map_bs)
+
+
+def is_affine_simplex(mesh: Any) -> bool:
+    """Whether every cell is an affine simplex (what the element tensors assume)."""
+    verts = compat.geometry_dofmap(mesh)
+    return mesh.topology.dim == mesh.geometry.dim and verts.shape[1] == mesh.topology.dim + 1
