@@ -125,13 +125,14 @@ class CellwiseForm:
         #: the row of each entry (a vector's entries: one per row that an owned cell touches)
         self._entry_rows = (unique // n_cols).astype(np.int64)
         self.n_rows = n_rows
-        # S: the structure's entries from the cells' coefficients, (n_entries, n_owned)
-        ptr = np.append(first, len(keys)).astype(PETSc.IntType)
-        self._S = PETSc.Mat().createAIJ(
-            (len(unique), n),
-            csr=(ptr, cell[order].astype(PETSc.IntType), np.ascontiguousarray(E.ravel()[order])),
-            comm=PETSc.COMM_SELF,
+        # S: the structure's entries from the cells' coefficients, (n_entries, n_owned);
+        # PETSc uses these arrays in place (kept here): each row's cells ascend (stable sort)
+        self._csr = (
+            np.append(first, len(keys)).astype(PETSc.IntType),
+            cell[order].astype(PETSc.IntType),
+            np.ascontiguousarray(E.ravel()[order], dtype=PETSc.ScalarType),
         )
+        self._S = PETSc.Mat().createAIJWithArrays((len(unique), n), self._csr, comm=PETSc.COMM_SELF)
         self._k = PETSc.Vec().createSeq(n, comm=PETSc.COMM_SELF)
         self._values = PETSc.Vec().createSeq(len(unique), comm=PETSc.COMM_SELF)
 

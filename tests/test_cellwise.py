@@ -96,11 +96,11 @@ def test_pressure_step_on_cellwise_operators_equals_the_forms():
     x_nodes = V.tabulate_dof_coordinates()
     star = np.stack([np.sin(3 * x_nodes[:, 1]), np.cos(2 * x_nodes[:, 0])], axis=1).ravel()
 
-    def step(cell_density):
+    def step(cell_dofs):
         proj = PressureProjection(
             V, Q, 2, rho, None, ufl.dx(domain=mesh), dt_c, bcs_u, [], "velocity", True,
             "auto", 1e-12, lambda name: _NoTimer(), divergence_rtol=0.05,
-            cell_density=cell_density,
+            cell_dofs=cell_dofs,
         )  # fmt: skip
         proj.u_star.x.array[:] = star
         u = compat.dolfinx.fem.Function(V)
@@ -113,7 +113,7 @@ def test_pressure_step_on_cellwise_operators_equals_the_forms():
         return proj, u.x.array.copy(), p.x.array.copy()
 
     plain, u0, p0 = step(None)
-    fast, u1, p1 = step(lambda: rho.x.array[owned])
+    fast, u1, p1 = step(owned)
     assert not plain._cellwise and set(fast._cellwise) == {"laplacian", "mass", "gradient"}
     du = mesh.comm.allreduce(float(np.max(np.abs(u1 - u0))), op=MPI.MAX)
     # the pressure of a closed box up to a constant (the AMG sets it from round-off)

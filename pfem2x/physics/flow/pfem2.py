@@ -347,7 +347,7 @@ class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers,
                 self.scene.method.preconditioner, pr.rtol, self.timer,
                 force_in_projection=(self.jump is not None or self.capillary is not None)
                 and not pr.incremental, divergence_rtol=pr.divergence_rtol,
-                cell_density=self.cell_density,
+                cell_dofs=self._cell_dofs,
             )
         )  # fmt: skip
         v, w = ufl.TrialFunction(self.V), ufl.TestFunction(self.V)

@@ -40,7 +40,7 @@ balanced state (no weak divergence) is left as it is. One more matrix (:math:`G`
 the Laplacian) and one GMRES solve per pressure step (docs/RESULTS.md, "Where the water particles'
 volume goes").
 
-With a cellwise (DG0) density (the Lagrangian frame's ``cell_density``) and a closed box,
+With a cellwise (DG0) density (the Lagrangian frame's, ``cell_dofs``) and a closed box,
 the Laplacian, :math:`G` and the lumped mass :math:`M_\rho` are re-assembled from their
 element tensors as sparse products (:mod:`pfem2x.cellwise`), the increment's right-hand
 side is :math:`-\Delta t^{-1} D u^*` with :math:`D` assembled once, and with the
@@ -98,8 +98,8 @@ class PressureProjection:
         (with ``incremental = False``; see the module docstring).
     divergence_rtol
         > 0: the discrete projection to this tolerance (see the module docstring).
-    cell_density
-        ``rho`` is the DG0 function whose owned cells' values this returns: the
+    cell_dofs
+        ``rho`` is a DG0 function and these are its owned cells' dofs: the
         operators that change with it (the Laplacian, the lumped mass, the discrete
         projection's gradient) are re-assembled as sparse products of their element
         tensors (:mod:`pfem2x.cellwise`; closed boxes, affine simplices), and the
@@ -125,7 +125,7 @@ class PressureProjection:
         timer: Callable[[str], AbstractContextManager[None]],
         force_in_projection: bool = False,
         divergence_rtol: float = 0.0,
-        cell_density: Callable[[], np.ndarray] | None = None,
+        cell_dofs: np.ndarray | None = None,
     ):
         self.bcs_u, self.bcs_p = bcs_u, bcs_p
         self.dt_c = dt_c
@@ -177,7 +177,12 @@ class PressureProjection:
         else:
             self.L_c = compat.form(ufl.dot(grad_dp, w) * dxq)
         self.b_c = compat.create_vector(self.L_c)
-        self.cell_density = cell_density
+        #: the owned cells' density (``cell_dofs`` given), else None; a closure over
+        #: ``rho`` alone, so that the frame and this object hold no reference cycle
+        self.cell_density: Callable[[], np.ndarray] | None = None
+        if cell_dofs is not None:
+            cells = np.asarray(cell_dofs)
+            self.cell_density = lambda: rho.x.array[cells]
         self._cellwise_forms(V, Q, gdim, dxq)
         if self.divergence_rtol > 0.0:
             self._discrete = _DiscreteProjection(V, Q, rho, dxq, self)
@@ -213,7 +218,7 @@ class PressureProjection:
 
     def _inverse_density(self) -> np.ndarray:
         """``1 / rho`` of the owned cells (the cellwise operators' coefficient)."""
-        return 1.0 / self.cell_density()
+        return 1.0 / self.cell_density()  # type: ignore[misc]
 
     def assemble_operator(self) -> None:
         """(Re-)assemble the pressure operator (its density may have changed)."""
@@ -326,7 +331,10 @@ class _DiscreteProjection:
         self.D = proj.D
         if self.D is None:
             self.D = fem.assemble_matrix(compat.form(ufl.div(v) * r * dxq), [])
-        self._proj = proj
+        #: G from the cells' 1/rho (:mod:`pfem2x.cellwise`), or None: by its form
+        self._gradient = proj._cellwise.get("gradient")
+        density = proj.cell_density
+        self._inverse_density = (lambda: 1.0 / density()) if density is not None else None
         self.a_G = compat.form(ufl.dot(ufl.grad(q), w) / rho * dxq)
         self.G: Any = None
         self.minv = compat.create_vector(proj.L_mass)
@@ -341,9 +349,8 @@ class _DiscreteProjection:
 
     def assemble(self, A_p: Any, nullspace: Any, p_solver: fem.LinearSolver) -> None:
         """:math:`PM^{-1}G` of the current density; the solver on first use (collective)."""
-        gradient = self._proj._cellwise.get("gradient")
-        if self.G is not None and gradient is not None:
-            gradient.matrix(self._proj._inverse_density(), self.G)
+        if self.G is not None and self._gradient is not None:
+            self._gradient.matrix(self._inverse_density(), self.G)
         else:
             self.G = fem.assemble_matrix(self.a_G, [], self.G)
         self.G.diagonalScale(L=self.minv)  # P M^-1 G
