@@ -177,20 +177,22 @@ class PressureProjection:
         else:
             self.L_c = compat.form(ufl.dot(grad_dp, w) * dxq)
         self.b_c = compat.create_vector(self.L_c)
+        self._cellwise_forms(V, Q, gdim, dxq, rho, cell_dofs)
+        if self.divergence_rtol > 0.0:
+            self._discrete = _DiscreteProjection(V, Q, rho, dxq, self)
+        #: iteration counts of the last solves, by equation
+        self.iterations: dict[str, int] = {}
+
+    def _cellwise_forms(
+        self, V: Any, Q: Any, gdim: int, dxq: Any, rho: Any, cell_dofs: np.ndarray | None
+    ) -> None:
+        """The operators re-assembled from :attr:`cell_density` (:mod:`pfem2x.cellwise`)."""
         #: the owned cells' density (``cell_dofs`` given), else None; a closure over
         #: ``rho`` alone, so that the frame and this object hold no reference cycle
         self.cell_density: Callable[[], np.ndarray] | None = None
         if cell_dofs is not None:
             cells = np.asarray(cell_dofs)
             self.cell_density = lambda: rho.x.array[cells]
-        self._cellwise_forms(V, Q, gdim, dxq)
-        if self.divergence_rtol > 0.0:
-            self._discrete = _DiscreteProjection(V, Q, rho, dxq, self)
-        #: iteration counts of the last solves, by equation
-        self.iterations: dict[str, int] = {}
-
-    def _cellwise_forms(self, V: Any, Q: Any, gdim: int, dxq: Any) -> None:
-        """The operators re-assembled from :attr:`cell_density` (:mod:`pfem2x.cellwise`)."""
         #: by name: "laplacian", "mass" and (discrete projection) "gradient"
         self._cellwise: dict[str, CellwiseForm] = {}
         #: the weak divergence D (int div(v) r), once: the increment's right-hand side
