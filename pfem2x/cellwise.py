@@ -48,7 +48,7 @@ def p1_laplacian(table: Any, dofs: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     n = table.num_cells_owned
     grad = _gradients(table)
     vol = np.asarray(table.volume[:n])
-    E = vol[:, None, None] * np.einsum("nig,njg->nij", grad, grad)
+    E = vol[:, None, None] * np.matmul(grad, np.transpose(grad, (0, 2, 1)))
     d = np.ascontiguousarray(dofs[:n])
     return E, d, d
 
@@ -109,27 +109,28 @@ class CellwiseForm:
         n_rows: int,
         n_cols: int = 1,
     ):
-        n = E.shape[0]
-        E = E.reshape(n, rows.shape[1], -1)
-        r = np.asarray(rows, dtype=np.int64)[:, :, None]
-        c = np.zeros((n, 1, 1), dtype=np.int64) if cols is None else np.asarray(cols)[:, None, :]
-        key = np.broadcast_to(r * n_cols + c, E.shape).ravel()
-        cell = np.broadcast_to(np.arange(n, dtype=np.int32)[:, None, None], E.shape).ravel()
+        n, nr = rows.shape
+        E = E.reshape(n, nr, -1)
+        r = rows.astype(np.int64)[:, :, None] * n_cols
+        key = (r if cols is None else r + cols[:, None, :]).reshape(-1)  # (n, nr, nc) entries
         order = np.argsort(key, kind="stable")
         keys = key[order]
-        first = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]]) if len(keys) else keys[:0]
+        new = np.ones(len(keys), dtype=bool)
+        np.not_equal(keys[1:], keys[:-1], out=new[1:])
+        first = np.flatnonzero(new)
         unique = keys[first]
+        unique_rows = unique // n_cols
         #: the structure of the re-assembled rows (local indices, CSR)
-        self.indptr = np.searchsorted(unique // n_cols, np.arange(n_rows + 1)).astype(PETSc.IntType)
-        self.indices = (unique % n_cols).astype(PETSc.IntType)
+        self.indptr = np.searchsorted(unique_rows, np.arange(n_rows + 1)).astype(PETSc.IntType)
+        self.indices = (unique - unique_rows * n_cols).astype(PETSc.IntType)
         #: the row of each entry (a vector's entries: one per row that an owned cell touches)
-        self._entry_rows = (unique // n_cols).astype(np.int64)
+        self._entry_rows = unique_rows
         self.n_rows = n_rows
         # S: the structure's entries from the cells' coefficients, (n_entries, n_owned);
         # PETSc uses these arrays in place (kept here): each row's cells ascend (stable sort)
         self._csr = (
             np.append(first, len(keys)).astype(PETSc.IntType),
-            cell[order].astype(PETSc.IntType),
+            (order // E[0].size).astype(PETSc.IntType),  # the cell of each entry
             np.ascontiguousarray(E.ravel()[order], dtype=PETSc.ScalarType),
         )
         self._S = PETSc.Mat().createAIJWithArrays((len(unique), n), self._csr, comm=PETSc.COMM_SELF)

@@ -16,11 +16,18 @@ collective that the failed rank will never enter, so it prints
 MPI run (``MPI_Abort``). A rank on which the test passed waits at most
 ``PFEM2X_MPI_PASS_WAIT`` seconds (default 900) before doing the same.
 
+After each test every rank runs Python's garbage collector (:func:`_collect_together`),
+so that objects held in reference cycles (a solver and its PETSc objects, a mesh and its
+communicator) are freed at the same point on every rank: freed by the automatic collector,
+at allocation counts that differ between the ranks, a communicator was released on one
+rank while the other was already creating the next test's mesh, and MPICH aborted the run.
+
 Before the tests, rank 0 compiles the particle kernels (or loads them from numba's
 cache) and only then do the other ranks load them (:func:`pfem2x.jit.warm_up`);
 ``PFEM2X_TEST_WARMUP=0`` skips this.
 """
 
+import gc
 import os
 import pathlib
 import shutil
@@ -126,6 +133,14 @@ def pytest_runtest_makereport(item, call):
     if _OUTCOME_COMM is not None:
         _agree(item, rep)
     return rep
+
+
+@pytest.fixture(autouse=True)
+def _collect_together():
+    """Under MPI, collect the test's garbage on every rank at its end (see the module text)."""
+    yield
+    if MPI.COMM_WORLD.size > 1:
+        gc.collect()
 
 
 @pytest.fixture
