@@ -1,8 +1,9 @@
 """Thin finite-element helpers over DOLFINx/PETSc: counted assembly and solves.
 
-Every matrix assembly and linear solve in pfem2x goes through this module,
-so that a run can report (and a test can assert) exactly which operators a
-scene built: "simulate only the effects a scene calls for".
+Every matrix assembly and linear solve in pfem2x goes through this module or is
+counted in its :data:`COUNTERS` (the re-assemblies from element tensors of
+:mod:`pfem2x.cellwise`), so that a run can report (and a test can assert) exactly
+which operators a scene built: "simulate only the effects a scene calls for".
 """
 
 from __future__ import annotations
