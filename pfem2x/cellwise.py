@@ -23,16 +23,11 @@ from typing import Any
 
 import numpy as np
 
-from pfem2x import compat, fem
+from pfem2x import fem
 from pfem2x.compat import PETSc
+from pfem2x.mesh import basis_gradients
 
 __all__ = ["CellwiseForm", "p1_gradient", "p1_laplacian", "p1_lumped_mass"]
-
-
-def _gradients(table: Any) -> np.ndarray:
-    """``(n_owned, tdim+1, gdim)`` gradients of the P1 basis functions of each owned cell."""
-    inv = np.asarray(table.inv_map[: table.num_cells_owned])  # rows: grad lambda_1 .. lambda_d
-    return np.concatenate([-inv.sum(axis=1, keepdims=True), inv], axis=1)
 
 
 def p1_laplacian(table: Any, dofs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -46,7 +41,7 @@ def p1_laplacian(table: Any, dofs: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
         The scalar P1 space's cell → dof table (:func:`pfem2x.compat.dofmap_array`).
     """
     n = table.num_cells_owned
-    grad = _gradients(table)
+    grad = basis_gradients(table)
     vol = np.asarray(table.volume[:n])
     E = vol[:, None, None] * np.matmul(grad, np.transpose(grad, (0, 2, 1)))
     d = np.ascontiguousarray(dofs[:n])
@@ -63,7 +58,7 @@ def p1_gradient(
     :math:`\nabla q` is constant in the cell.
     """
     n = table.num_cells_owned
-    grad = _gradients(table)  # (n, j, comp)
+    grad = basis_gradients(table)  # (n, j, comp)
     nv = grad.shape[1]
     vol = np.asarray(table.volume[:n]) / nv
     # E[c, (i, comp), j] = |c| / (d + 1) * d(lambda_j)/dx_comp
@@ -166,9 +161,3 @@ def local_size(V: Any) -> int:
     """Unrolled local dofs (owned + ghosts) of a function space."""
     imap = V.dofmap.index_map
     return int(imap.size_local + imap.num_ghosts) * int(V.dofmap.index_map_bs)
-
-
-def is_affine_simplex(mesh: Any) -> bool:
-    """Whether every cell is an affine simplex (what the element tensors assume)."""
-    verts = compat.geometry_dofmap(mesh)
-    return mesh.topology.dim == mesh.geometry.dim and verts.shape[1] == mesh.topology.dim + 1

@@ -18,7 +18,15 @@ from pfem2x import compat
 from pfem2x.compat import MPI
 from pfem2x.partition import block_partitioner, rectangle_partitioner
 
-__all__ = ["Domain", "GeometryTable", "MeshError", "build_mesh", "geometry_table", "read_geo"]
+__all__ = [
+    "Domain",
+    "GeometryTable",
+    "MeshError",
+    "basis_gradients",
+    "build_mesh",
+    "geometry_table",
+    "read_geo",
+]
 
 
 class MeshError(ValueError):
@@ -97,6 +105,13 @@ def geometry_table(mesh: Any) -> GeometryTable:
     except TypeError:
         _TABLES_BY_ID[id(mesh)] = (mesh, table)
     return table
+
+
+def basis_gradients(table: GeometryTable) -> np.ndarray:
+    """``(num_cells_owned, tdim+1, gdim)``: the gradients of each owned cell's P1 basis
+    functions (barycentric coordinates), in the order of the cell's vertices and P1 dofs."""
+    inv = np.asarray(table.inv_map[: table.num_cells_owned])  # grad lambda_1 .. lambda_d
+    return np.concatenate([-inv.sum(axis=1, keepdims=True), inv], axis=1)
 
 
 def _build_table(mesh: Any) -> GeometryTable:

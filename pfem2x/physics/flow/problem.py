@@ -36,7 +36,7 @@ from pfem2x import compat
 from pfem2x.cases import make_case
 from pfem2x.compat import MPI, PETSc
 from pfem2x.expr import Expression
-from pfem2x.mesh import Domain
+from pfem2x.mesh import Domain, basis_gradients
 from pfem2x.physics.base import Diverged, Solver, require_finite_input
 from pfem2x.physics.flow._kernels import cell_velocity_kernel
 from pfem2x.physics.flow.capillary import capillary_dt_limit
@@ -193,8 +193,7 @@ class FlowSolver(Solver):
         self.cell_xy = self.coords[self.dofmap[: self.n_owned]][:, :, :gdim]
         self.cell_vol = tab.volume[: self.n_owned]
         # gradients of the barycentric coordinates (for div u), ordered like the dofmap
-        inv = tab.inv_map[: self.n_owned]
-        self._gradlam = np.concatenate([-inv.sum(axis=1, keepdims=True), inv], axis=1)
+        self._gradlam = basis_gradients(tab)
         self._hcell = tab.h_edge[: self.n_owned]
         self._volume = float(self.comm.allreduce(float(self.cell_vol.sum()), op=MPI.SUM))
         #: errors against the exact solution (``None`` without one: nothing is evaluated)

@@ -102,7 +102,7 @@ class PressureProjection:
         ``rho`` is a DG0 function and these are its owned cells' dofs: the
         operators that change with it (the Laplacian, the lumped mass, the discrete
         projection's gradient) are re-assembled as sparse products of their element
-        tensors (:mod:`pfem2x.cellwise`; closed boxes, affine simplices), and the
+        tensors (:mod:`pfem2x.cellwise`; closed boxes), and the
         increment's right-hand side and the correction of the discrete projection
         are products with its matrices. ``None``: every form by DOLFINx.
     """
@@ -198,10 +198,9 @@ class PressureProjection:
         #: the weak divergence D (int div(v) r), once: the increment's right-hand side
         #: -D u*/dt without an assembly (the density-free right-hand side, closed boxes)
         self.D: Any = None
-        mesh = V.mesh
-        if self.cell_density is None or self.bcs_p or not cellwise.is_affine_simplex(mesh):
+        if self.cell_density is None or self.bcs_p:
             return
-        table = geometry_table(mesh)
+        table = geometry_table(V.mesh)  # (affine simplices: the table's own condition)
         qd, vd = compat.dofmap_array(Q), compat.dofmap_array(V)
         nq, nv = cellwise.local_size(Q), cellwise.local_size(V)
         self._cellwise["laplacian"] = CellwiseForm(
