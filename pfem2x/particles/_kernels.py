@@ -509,7 +509,8 @@ def theta_stage(
 def advect_p1(P, un, un1, du, q, dq, S, M):
     """Fused X-IVAS move + locate of every unfinished particle (P1 velocity).
 
-    Heun (RK2) sub-steps along the streamline of ``un`` (``(ndofs, gdim)``),
+    Heun (RK2) sub-steps along the streamline of ``un`` (``(ndofs, gdim)``; the
+    corrector's walk starts in the predictor's cell unless that walk wrapped),
     each of local Courant number ``courant`` and at most ``gcourant``
     times the inverse velocity-gradient norm of the cell (or ``dt/nsub``
     when ``nsub > 0``); then, when ``theta > 0``, the fixed point of eq. (2.10)
@@ -717,7 +718,7 @@ def _path_lanes_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, 
                 h = a_tl / m
             if blend:
                 t1 = (dt - a_tl + h) / dt
-            _x0, _x1, _x2, cm, s, m0, m1, m2, _m3, _s0, _s1, _s2 = _walk_s(
+            _x0, _x1, _x2, cm, s, m0, m1, m2, _m3, ps0, ps1, _s2 = _walk_s(
                 a_p0 + h * v0, a_p1 + h * v1, 0.0, a_c, origin, inv, nbr, pshift, period, 1000, 2
             )
             ok = s == ST_OK
@@ -730,8 +731,10 @@ def _path_lanes_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, 
                 if blend:
                     w0 += t1 * _eval_s(du, 0, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
                     w1 += t1 * _eval_s(du, 1, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
+                # the corrector's walk from the predictor's cell (unless that walk wrapped)
+                cs = cm if ps0 == 0.0 and ps1 == 0.0 else a_c
                 n0, n1, _n2, cn, s, k0, k1, k2, _k3, s0, s1, _s2 = _walk_s(
-                    a_p0 + 0.5 * h * (v0 + w0), a_p1 + 0.5 * h * (v1 + w1), 0.0, a_c, origin,
+                    a_p0 + 0.5 * h * (v0 + w0), a_p1 + 0.5 * h * (v1 + w1), 0.0, cs, origin,
                     inv, nbr, pshift, period, 1000, 2,
                 )  # fmt: skip
                 ok = s == ST_OK
@@ -814,7 +817,7 @@ def _path_lanes_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, 
                 h = b_tl / m
             if blend:
                 t1 = (dt - b_tl + h) / dt
-            _x0, _x1, _x2, cm, s, m0, m1, m2, _m3, _s0, _s1, _s2 = _walk_s(
+            _x0, _x1, _x2, cm, s, m0, m1, m2, _m3, ps0, ps1, _s2 = _walk_s(
                 b_p0 + h * v0, b_p1 + h * v1, 0.0, b_c, origin, inv, nbr, pshift, period, 1000, 2
             )
             ok = s == ST_OK
@@ -827,8 +830,10 @@ def _path_lanes_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, 
                 if blend:
                     w0 += t1 * _eval_s(du, 0, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
                     w1 += t1 * _eval_s(du, 1, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
+                # the corrector's walk from the predictor's cell (unless that walk wrapped)
+                cs = cm if ps0 == 0.0 and ps1 == 0.0 else b_c
                 n0, n1, _n2, cn, s, k0, k1, k2, _k3, s0, s1, _s2 = _walk_s(
-                    b_p0 + 0.5 * h * (v0 + w0), b_p1 + 0.5 * h * (v1 + w1), 0.0, b_c, origin,
+                    b_p0 + 0.5 * h * (v0 + w0), b_p1 + 0.5 * h * (v1 + w1), 0.0, cs, origin,
                     inv, nbr, pshift, period, 1000, 2,
                 )  # fmt: skip
                 ok = s == ST_OK
@@ -985,8 +990,9 @@ def _advect_p1_dim(
                 m1 = 0.0
                 m2 = 0.0
                 m3 = 0.0
+                ps0 = ps1 = ps2 = 0.0
                 for _r in range(12):
-                    _x0, _x1, _x2, cm, s, m0, m1, m2, m3, _s0, _s1, _s2 = _walk_s(
+                    _x0, _x1, _x2, cm, s, m0, m1, m2, m3, ps0, ps1, ps2 = _walk_s(
                         p0 + h * v0, p1 + h * v1, p2 + h * v2, c, origin, inv, nbr, pshift,
                         period, 1000, dim,
                     )  # fmt: skip
@@ -1048,9 +1054,11 @@ def _advect_p1_dim(
                         if blend:
                             qv[j] += t0 * _eval_s(dq, j, d0, d1, d2, d3, l0, l1, l2, l3, dim)
                 b0, b1, b2, b3 = l0, l1, l2, l3  # the start's barycentrics
+                # the corrector's walk from the predictor's cell (unless that walk wrapped)
+                cs = cm if ps0 == 0.0 and ps1 == 0.0 and ps2 == 0.0 else c
                 n0, n1, n2, cn, s, l0, l1, l2, l3, s0, s1, s2 = _walk_s(
                     p0 + 0.5 * h * (v0 + w0), p1 + 0.5 * h * (v1 + w1), p2 + 0.5 * h * (v2 + w2),
-                    c, origin, inv, nbr, pshift, period, 1000, dim,
+                    cs, origin, inv, nbr, pshift, period, 1000, dim,
                 )  # fmt: skip
                 if has_q and s == ST_OK:
                     f0 = dofs[cn, 0]
