@@ -20,7 +20,7 @@ help:
 	@echo "make test      set up and run lint + the test suite (serial and mpirun -n $(NP))"
 	@echo "make test-011  the same on DOLFINx 0.11 (PyPI wheel, Python 3.12 venv at $(VENV011))"
 
-# setup also compiles the particle kernels into numba's cache (about a minute once, after
+# setup also compiles the particle kernels into numba's cache (minutes once, after
 # install or a change of the kernels; otherwise a file-time check of a fraction of a second).
 setup: $(VENV)/.stamp
 	@$(PY) -m pfem2x.jit --if-cold

@@ -1,7 +1,7 @@
 """The particle kernels' numba compilation: warmed once at set-up, announced when cold.
 
 The kernels of :mod:`pfem2x.particles._kernels` are compiled by numba on first
-use (about a minute on a small machine) and cached on disk next to the source
+use (minutes: about 8 on a 2-core virtual machine) and cached on disk next to the source
 (``pfem2x/particles/__pycache__``, or under ``NUMBA_CACHE_DIR``); later runs
 load them in about a second. :func:`warm_up` compiles or loads every kernel a
 scene uses by running the particle layer once on a tiny mesh, and says so first
@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 #: What a run prints (rank 0, not with ``--quiet``) while the kernels compile.
-MESSAGE = "compiling particle kernels (first run after install, about a minute)..."
+MESSAGE = "compiling particle kernels (first run after install or a kernel change: minutes)..."
 
 KERNELS = Path(__file__).resolve().parent / "particles" / "_kernels.py"
 _TAG = f"py{sys.version_info[0]}{sys.version_info[1]}"
