@@ -327,7 +327,7 @@ def test_theta_stage_without_contraction_terminates(comm):
 
 @pytest.mark.parametrize("mode", ["courant", "fixed", "theta", "blend"])
 def test_triangle_fast_path_equals_generic_loop(mode):
-    """The 2D move (two particles side by side, then the per-particle loop) is the generic loop.
+    """The 2D move (its regular sub-steps' loop, then the per-particle loop) is the generic loop.
 
     Same state, velocities and source through :func:`_advect_p1_tri` and
     :func:`_advect_p1_any`: positions, cells, displacements, source integrals

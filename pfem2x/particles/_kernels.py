@@ -239,6 +239,20 @@ def _walk_s(x0, x1, x2, c, origin, inv, nbr, pshift, period, maxit, dim):
     return x0, x1, x2, c, ST_FAIL, l0, l1, l2, l3, s0, s1, s2
 
 
+@njit(cache=True, error_model="numpy")
+def _min_facet_tri(l0, l1, l2):
+    """The smallest of a triangle's barycentrics and its index, as :func:`_walk_s` picks it."""
+    best = 0
+    bv = l0
+    if l1 < bv:
+        bv = l1
+        best = 1
+    if l2 < bv:
+        bv = l2
+        best = 2
+    return bv, best
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def walk(x, c, origin, inv, nbr, pshift, period, lam, shift, maxit):
     """Walk from cell ``c`` to the cell containing ``x`` (modified in place).
@@ -596,11 +610,11 @@ def _advect_p1_tri(
 ):  # fmt: skip
     """:func:`advect_p1` for triangles in 2D (:func:`_advect_p1_dim` for a constant ``dim = 2``).
 
-    The regular sub-steps go first, two particles at a time (:func:`_path_lanes_tri`);
-    :func:`_advect_p1_dim` then finishes every particle from where they left it (those
-    whose path ended there with ``theta = 0`` are done already).
+    The regular sub-steps go first (:func:`_path_tri`); :func:`_advect_p1_dim` then
+    finishes every particle from where it left it (those whose path ended there with
+    ``theta = 0`` are done already).
     """
-    fast = _path_lanes_tri(
+    fast = _path_tri(
         x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, has_q, courant, gcourant,
         nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, dq, blend,
     )  # fmt: skip
@@ -611,90 +625,68 @@ def _advect_p1_tri(
 
 
 @njit(cache=True, error_model="numpy")
-def _path_lanes_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, has_q, courant,
-                    gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs,
-                    n_owned, du, dq, blend):  # fmt: skip
-    """The regular path sub-steps of every particle in stage 0, two particles interleaved.
+def _path_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, has_q, courant,
+              gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, dq,
+              blend):  # fmt: skip
+    """The regular path sub-steps of every particle in stage 0 (triangles, 2D).
 
     Each particle's sub-steps are those of :func:`_advect_p1_dim`, operation for
-    operation; two particles advance side by side so that the processor
-    overlaps their latency-bound chains (walk, velocity gather, next walk). A
-    particle stops at the end of its path or before its first sub-step that is
-    not regular (a walk that does not end inside a local cell); its state
-    (position, cell, time left, displacement, source integral) is written back
-    for :func:`_advect_p1_dim`, which redoes that sub-step and finishes the
-    particle. A particle at the end of its path with ``theta = 0`` is finished
-    here as :func:`_advect_p1_dim` would (no time left, done, its status), so that
-    loop passes over it. Returns the sub-steps taken.
+    operation, with the particle in scalars and no retry branch. A particle stops
+    at the end of its path or before its first sub-step that is not regular (a
+    walk that does not end inside a local cell); its state (position, cell, time
+    left, displacement, source integral) is written back for
+    :func:`_advect_p1_dim`, which redoes that sub-step and finishes the particle.
+    A particle at the end of its path with ``theta = 0`` is finished here as
+    :func:`_advect_p1_dim` would (no time left, done, its status), so that loop
+    passes over it. Returns the sub-steps taken.
+
+    Most walks of a sub-step end in the cell they start in or in its neighbour
+    across the facet of the most negative barycentric: the loop tests those two
+    cells itself and calls :func:`_walk_s` (from the neighbour) only for the other
+    walks (a wall, a periodic facet, two or more crossings). A call of
+    :func:`_walk_s` passes every mesh array and returns its result through memory,
+    and LLVM does not inline it; the result is :func:`_walk_s`'s to the bit (the
+    same barycentrics, facets and cells).
     """
     n = x.shape[0]
     kq = q.shape[1]
-    ak = np.zeros((2, kq))
+    ak = np.zeros(kq)
     tol = 1e-14 * dt
     nsteps = 0
-    nxt = 0
-    # lane A: particle pa (-1: idle), lane B: pb
-    pa = -1
-    pb = -1
-    a_p0 = a_p1 = a_l0 = a_l1 = a_l2 = a_tl = a_a0 = a_a1 = 0.0
-    b_p0 = b_p1 = b_l0 = b_l1 = b_l2 = b_tl = b_a0 = b_a1 = 0.0
-    a_c = b_c = 0
     t0 = t1 = 0.0  # the time fractions of a sub-step's ends (blend)
     z0 = z1 = 0.0  # the change of the velocity over the move at a sub-step's start (blend)
-    while True:
-        if pa < 0:
-            while nxt < n and (stage[nxt] != STAGE_PATH or not t_left[nxt] > tol):
-                nxt += 1
-            if nxt < n:
-                pa = nxt
-                nxt += 1
-                a_c = cell[pa]
-                a_p0 = x[pa, 0]
-                a_p1 = x[pa, 1]
-                a_tl = t_left[pa]
-                a_a0 = aux[pa, 0]
-                a_a1 = aux[pa, 1]
-                a_l0, a_l1, a_l2, _l3 = _bary_s(a_p0, a_p1, 0.0, a_c, origin, inv, 2)
-                if has_q:
-                    for j in range(kq):
-                        ak[0, j] = acc[pa, j]
-        if pb < 0:
-            while nxt < n and (stage[nxt] != STAGE_PATH or not t_left[nxt] > tol):
-                nxt += 1
-            if nxt < n:
-                pb = nxt
-                nxt += 1
-                b_c = cell[pb]
-                b_p0 = x[pb, 0]
-                b_p1 = x[pb, 1]
-                b_tl = t_left[pb]
-                b_a0 = aux[pb, 0]
-                b_a1 = aux[pb, 1]
-                b_l0, b_l1, b_l2, _l3 = _bary_s(b_p0, b_p1, 0.0, b_c, origin, inv, 2)
-                if has_q:
-                    for j in range(kq):
-                        ak[1, j] = acc[pb, j]
-        if pa < 0 and pb < 0:
-            break
-        if pa >= 0:
-            # -- one sub-step of lane A (the operations of _advect_p1_dim)
-            d0 = dofs[a_c, 0]
-            d1 = dofs[a_c, 1]
-            d2 = dofs[a_c, 2]
-            v0 = _eval_s(un, 0, d0, d1, d2, 0, a_l0, a_l1, a_l2, 0.0, 2)
-            v1 = _eval_s(un, 1, d0, d1, d2, 0, a_l0, a_l1, a_l2, 0.0, 2)
+    for p in range(n):
+        if stage[p] != STAGE_PATH or not t_left[p] > tol:
+            continue
+        c = cell[p]
+        p0 = x[p, 0]
+        p1 = x[p, 1]
+        tl = t_left[p]
+        a0 = aux[p, 0]
+        a1 = aux[p, 1]
+        l0, l1, l2, _l3 = _bary_s(p0, p1, 0.0, c, origin, inv, 2)
+        if has_q:
+            for j in range(kq):
+                ak[j] = acc[p, j]
+        ok = True
+        while True:
+            d0 = dofs[c, 0]
+            d1 = dofs[c, 1]
+            d2 = dofs[c, 2]
+            v0 = _eval_s(un, 0, d0, d1, d2, 0, l0, l1, l2, 0.0, 2)
+            v1 = _eval_s(un, 1, d0, d1, d2, 0, l0, l1, l2, 0.0, 2)
             if blend:
-                t0 = (dt - a_tl) / dt
-                z0 = _eval_s(du, 0, d0, d1, d2, 0, a_l0, a_l1, a_l2, 0.0, 2)
-                z1 = _eval_s(du, 1, d0, d1, d2, 0, a_l0, a_l1, a_l2, 0.0, 2)
+                t0 = (dt - tl) / dt
+                z0 = _eval_s(du, 0, d0, d1, d2, 0, l0, l1, l2, 0.0, 2)
+                z1 = _eval_s(du, 1, d0, d1, d2, 0, l0, l1, l2, 0.0, 2)
                 v0 += t0 * z0
                 v1 += t0 * z1
             if nsub > 0:
                 h = dt / nsub
-                m = np.ceil(a_tl / h - 1e-9)
+                m = np.ceil(tl / h - 1e-9)
                 if m < 1.0:
                     m = 1.0
-                h = a_tl / m
+                h = tl / m
             else:
                 sp = v0 * v0 + v1 * v1
                 if blend:  # the speed at the move's end here too
@@ -703,177 +695,108 @@ def _path_lanes_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, 
                     sq = y0 * y0 + y1 * y1
                     if sq > sp:
                         sp = sq
-                rate = np.sqrt(sp) / (courant * hc[a_c])
+                rate = np.sqrt(sp) / (courant * hc[c])
                 if gcourant > 0.0:
-                    gr = _grad_norm_s(un, d0, d1, d2, 0, a_c, inv, 2) / gcourant
+                    gr = _grad_norm_s(un, d0, d1, d2, 0, c, inv, 2) / gcourant
                     if gr > rate:
                         rate = gr
                     if blend:
-                        gr = _grad_norm_end_s(un, du, d0, d1, d2, 0, a_c, inv, 2) / gcourant
+                        gr = _grad_norm_end_s(un, du, d0, d1, d2, 0, c, inv, 2) / gcourant
                         if gr > rate:
                             rate = gr
-                m = np.ceil(a_tl * rate)
+                m = np.ceil(tl * rate)
                 if m < 1.0:
                     m = 1.0
-                h = a_tl / m
+                h = tl / m
             if blend:
-                t1 = (dt - a_tl + h) / dt
-            _x0, _x1, _x2, cm, s, m0, m1, m2, _m3, ps0, ps1, _s2 = _walk_s(
-                a_p0 + h * v0, a_p1 + h * v1, 0.0, a_c, origin, inv, nbr, pshift, period, 1000, 2
-            )
+                t1 = (dt - tl + h) / dt
+            # the predictor's walk: its start cell and that cell's neighbour here, the rest
+            # by _walk_s (from that neighbour); the same result to the bit. Written out
+            # here and for the corrector: a helper that returns the cell and a flag,
+            # inlined by LLVM, made the loop 15 % slower (a saved Rayleigh-Taylor move)
+            r0 = p0 + h * v0
+            r1 = p1 + h * v1
+            cm = c
+            m0, m1, m2, _m3 = _bary_s(r0, r1, 0.0, cm, origin, inv, 2)
+            bv, best = _min_facet_tri(m0, m1, m2)
+            s = ST_OK
+            ps0 = ps1 = 0.0
+            if bv < -TOL and nbr[cm, best] >= 0 and pshift[cm, best] == 0:
+                cm = nbr[cm, best]
+                m0, m1, m2, _m3 = _bary_s(r0, r1, 0.0, cm, origin, inv, 2)
+                bv, best = _min_facet_tri(m0, m1, m2)
+            if not bv >= -TOL:
+                _x0, _x1, _x2, cm, s, m0, m1, m2, _m3, ps0, ps1, _s2 = _walk_s(
+                    r0, r1, 0.0, cm, origin, inv, nbr, pshift, period, 1000, 2
+                )
             ok = s == ST_OK
-            if ok:
-                e0 = dofs[cm, 0]
-                e1 = dofs[cm, 1]
-                e2 = dofs[cm, 2]
-                w0 = _eval_s(un, 0, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
-                w1 = _eval_s(un, 1, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
-                if blend:
-                    w0 += t1 * _eval_s(du, 0, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
-                    w1 += t1 * _eval_s(du, 1, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
-                # the corrector's walk from the predictor's cell (unless that walk wrapped)
-                cs = cm if ps0 == 0.0 and ps1 == 0.0 else a_c
-                n0, n1, _n2, cn, s, k0, k1, k2, _k3, s0, s1, _s2 = _walk_s(
-                    a_p0 + 0.5 * h * (v0 + w0), a_p1 + 0.5 * h * (v1 + w1), 0.0, cs, origin,
-                    inv, nbr, pshift, period, 1000, 2,
-                )  # fmt: skip
-                ok = s == ST_OK
-            if ok:
-                if has_q:
-                    f0 = dofs[cn, 0]
-                    f1 = dofs[cn, 1]
-                    f2 = dofs[cn, 2]
-                    for j in range(kq):
-                        qv = _eval_s(q, j, d0, d1, d2, 0, a_l0, a_l1, a_l2, 0.0, 2)
-                        qe = _eval_s(q, j, f0, f1, f2, 0, k0, k1, k2, 0.0, 2)
-                        if blend:
-                            qv += t0 * _eval_s(dq, j, d0, d1, d2, 0, a_l0, a_l1, a_l2, 0.0, 2)
-                            qe += t1 * _eval_s(dq, j, f0, f1, f2, 0, k0, k1, k2, 0.0, 2)
-                        ak[0, j] += 0.5 * h * (qv + qe)
-                a_a0 += n0 - s0 - a_p0
-                a_a1 += n1 - s1 - a_p1
-                a_p0 = n0
-                a_p1 = n1
-                a_tl -= h
-                a_c = cn
-                a_l0 = k0
-                a_l1 = k1
-                a_l2 = k2
-                nsteps += 1
-            if not ok or not a_tl > tol:
-                x[pa, 0] = a_p0
-                x[pa, 1] = a_p1
-                cell[pa] = a_c
-                t_left[pa] = a_tl
-                if ok and theta == 0.0:  # the path's end: done (as _advect_p1_dim)
-                    t_left[pa] = 0.0
-                    stage[pa] = STAGE_DONE
-                    status[pa] = ST_GHOST if a_c >= n_owned else ST_OK
-                aux[pa, 0] = a_a0
-                aux[pa, 1] = a_a1
-                if has_q:
-                    for j in range(kq):
-                        acc[pa, j] = ak[0, j]
-                pa = -1
-        if pb >= 0:
-            # -- one sub-step of lane B (the operations of _advect_p1_dim)
-            d0 = dofs[b_c, 0]
-            d1 = dofs[b_c, 1]
-            d2 = dofs[b_c, 2]
-            v0 = _eval_s(un, 0, d0, d1, d2, 0, b_l0, b_l1, b_l2, 0.0, 2)
-            v1 = _eval_s(un, 1, d0, d1, d2, 0, b_l0, b_l1, b_l2, 0.0, 2)
+            if not ok:
+                break
+            e0 = dofs[cm, 0]
+            e1 = dofs[cm, 1]
+            e2 = dofs[cm, 2]
+            w0 = _eval_s(un, 0, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
+            w1 = _eval_s(un, 1, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
             if blend:
-                t0 = (dt - b_tl) / dt
-                z0 = _eval_s(du, 0, d0, d1, d2, 0, b_l0, b_l1, b_l2, 0.0, 2)
-                z1 = _eval_s(du, 1, d0, d1, d2, 0, b_l0, b_l1, b_l2, 0.0, 2)
-                v0 += t0 * z0
-                v1 += t0 * z1
-            if nsub > 0:
-                h = dt / nsub
-                m = np.ceil(b_tl / h - 1e-9)
-                if m < 1.0:
-                    m = 1.0
-                h = b_tl / m
-            else:
-                sp = v0 * v0 + v1 * v1
-                if blend:  # the speed at the move's end here too
-                    y0 = v0 + (1.0 - t0) * z0
-                    y1 = v1 + (1.0 - t0) * z1
-                    sq = y0 * y0 + y1 * y1
-                    if sq > sp:
-                        sp = sq
-                rate = np.sqrt(sp) / (courant * hc[b_c])
-                if gcourant > 0.0:
-                    gr = _grad_norm_s(un, d0, d1, d2, 0, b_c, inv, 2) / gcourant
-                    if gr > rate:
-                        rate = gr
+                w0 += t1 * _eval_s(du, 0, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
+                w1 += t1 * _eval_s(du, 1, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
+            # the corrector's walk (as the predictor's) from the predictor's cell, unless
+            # that walk wrapped
+            cs = cm if ps0 == 0.0 and ps1 == 0.0 else c
+            n0 = p0 + 0.5 * h * (v0 + w0)
+            n1 = p1 + 0.5 * h * (v1 + w1)
+            cn = cs
+            k0, k1, k2, _k3 = _bary_s(n0, n1, 0.0, cn, origin, inv, 2)
+            bv, best = _min_facet_tri(k0, k1, k2)
+            s = ST_OK
+            s0 = s1 = 0.0
+            if bv < -TOL and nbr[cn, best] >= 0 and pshift[cn, best] == 0:
+                cn = nbr[cn, best]
+                k0, k1, k2, _k3 = _bary_s(n0, n1, 0.0, cn, origin, inv, 2)
+                bv, best = _min_facet_tri(k0, k1, k2)
+            if not bv >= -TOL:
+                n0, n1, _n2, cn, s, k0, k1, k2, _k3, s0, s1, _s2 = _walk_s(
+                    n0, n1, 0.0, cn, origin, inv, nbr, pshift, period, 1000, 2
+                )
+            ok = s == ST_OK
+            if not ok:
+                break
+            if has_q:
+                f0 = dofs[cn, 0]
+                f1 = dofs[cn, 1]
+                f2 = dofs[cn, 2]
+                for j in range(kq):
+                    qv = _eval_s(q, j, d0, d1, d2, 0, l0, l1, l2, 0.0, 2)
+                    qe = _eval_s(q, j, f0, f1, f2, 0, k0, k1, k2, 0.0, 2)
                     if blend:
-                        gr = _grad_norm_end_s(un, du, d0, d1, d2, 0, b_c, inv, 2) / gcourant
-                        if gr > rate:
-                            rate = gr
-                m = np.ceil(b_tl * rate)
-                if m < 1.0:
-                    m = 1.0
-                h = b_tl / m
-            if blend:
-                t1 = (dt - b_tl + h) / dt
-            _x0, _x1, _x2, cm, s, m0, m1, m2, _m3, ps0, ps1, _s2 = _walk_s(
-                b_p0 + h * v0, b_p1 + h * v1, 0.0, b_c, origin, inv, nbr, pshift, period, 1000, 2
-            )
-            ok = s == ST_OK
-            if ok:
-                e0 = dofs[cm, 0]
-                e1 = dofs[cm, 1]
-                e2 = dofs[cm, 2]
-                w0 = _eval_s(un, 0, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
-                w1 = _eval_s(un, 1, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
-                if blend:
-                    w0 += t1 * _eval_s(du, 0, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
-                    w1 += t1 * _eval_s(du, 1, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
-                # the corrector's walk from the predictor's cell (unless that walk wrapped)
-                cs = cm if ps0 == 0.0 and ps1 == 0.0 else b_c
-                n0, n1, _n2, cn, s, k0, k1, k2, _k3, s0, s1, _s2 = _walk_s(
-                    b_p0 + 0.5 * h * (v0 + w0), b_p1 + 0.5 * h * (v1 + w1), 0.0, cs, origin,
-                    inv, nbr, pshift, period, 1000, 2,
-                )  # fmt: skip
-                ok = s == ST_OK
-            if ok:
-                if has_q:
-                    f0 = dofs[cn, 0]
-                    f1 = dofs[cn, 1]
-                    f2 = dofs[cn, 2]
-                    for j in range(kq):
-                        qv = _eval_s(q, j, d0, d1, d2, 0, b_l0, b_l1, b_l2, 0.0, 2)
-                        qe = _eval_s(q, j, f0, f1, f2, 0, k0, k1, k2, 0.0, 2)
-                        if blend:
-                            qv += t0 * _eval_s(dq, j, d0, d1, d2, 0, b_l0, b_l1, b_l2, 0.0, 2)
-                            qe += t1 * _eval_s(dq, j, f0, f1, f2, 0, k0, k1, k2, 0.0, 2)
-                        ak[1, j] += 0.5 * h * (qv + qe)
-                b_a0 += n0 - s0 - b_p0
-                b_a1 += n1 - s1 - b_p1
-                b_p0 = n0
-                b_p1 = n1
-                b_tl -= h
-                b_c = cn
-                b_l0 = k0
-                b_l1 = k1
-                b_l2 = k2
-                nsteps += 1
-            if not ok or not b_tl > tol:
-                x[pb, 0] = b_p0
-                x[pb, 1] = b_p1
-                cell[pb] = b_c
-                t_left[pb] = b_tl
-                if ok and theta == 0.0:  # the path's end: done (as _advect_p1_dim)
-                    t_left[pb] = 0.0
-                    stage[pb] = STAGE_DONE
-                    status[pb] = ST_GHOST if b_c >= n_owned else ST_OK
-                aux[pb, 0] = b_a0
-                aux[pb, 1] = b_a1
-                if has_q:
-                    for j in range(kq):
-                        acc[pb, j] = ak[1, j]
-                pb = -1
+                        qv += t0 * _eval_s(dq, j, d0, d1, d2, 0, l0, l1, l2, 0.0, 2)
+                        qe += t1 * _eval_s(dq, j, f0, f1, f2, 0, k0, k1, k2, 0.0, 2)
+                    ak[j] += 0.5 * h * (qv + qe)
+            a0 += n0 - s0 - p0
+            a1 += n1 - s1 - p1
+            p0 = n0
+            p1 = n1
+            tl -= h
+            c = cn
+            l0 = k0
+            l1 = k1
+            l2 = k2
+            nsteps += 1
+            if not tl > tol:
+                break
+        x[p, 0] = p0
+        x[p, 1] = p1
+        cell[p] = c
+        t_left[p] = tl
+        if ok and theta == 0.0:  # the path's end: done (as _advect_p1_dim)
+            t_left[p] = 0.0
+            stage[p] = STAGE_DONE
+            status[p] = ST_GHOST if c >= n_owned else ST_OK
+        aux[p, 0] = a0
+        aux[p, 1] = a1
+        if has_q:
+            for j in range(kq):
+                acc[p, j] = ak[j]
     return nsteps
 
 
