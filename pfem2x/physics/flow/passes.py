@@ -210,7 +210,8 @@ class TwoPasses:
         g = SDIRK_GAMMA
         proj = self.projection
         with self.timer("solve"):
-            it = self.m_solver.solve(self.b_m, compat.petsc_vec(self.u_star))
+            self.u_star.x.array[:] = self.u_hat.x.array  # the start: no viscous change
+            it = self.m_solver.solve(self.b_m, compat.petsc_vec(self.u_star), guess=True)
             self.u_star.x.scatter_forward()
         n = len(self.b_m.array_r)
         c = (1.0 - g) / g
@@ -218,7 +219,7 @@ class TwoPasses:
         self.b_m.array[:] = self._diag.array_r * r2
         self._set_viscous_bc()
         with self.timer("solve"):
-            it += self.m_solver.solve(self.b_m, compat.petsc_vec(self.u_star))
+            it += self.m_solver.solve(self.b_m, compat.petsc_vec(self.u_star), guess=True)
             self.u_star.x.scatter_forward()
         proj.iterations["momentum"] = it
 

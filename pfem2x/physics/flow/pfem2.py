@@ -544,8 +544,9 @@ class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers,
             self._viscous_sdirk2(dt)
         elif self.viscous:
             with self.timer("solve"):
+                self.u_star.x.array[:] = self.u_hat.x.array  # the start: no viscous change
                 proj.iterations["momentum"] = self.m_solver.solve(
-                    self.b_m, compat.petsc_vec(self.u_star)
+                    self.b_m, compat.petsc_vec(self.u_star), guess=True
                 )
                 self.u_star.x.scatter_forward()
         else:
