@@ -114,14 +114,16 @@ class LinearSolver:
         """Use a new (or re-assembled) operator."""
         self.ksp.setOperators(A)
 
-    def solve(self, b: Any, x: Any, guess: bool = False) -> int:
+    def solve(self, b: Any, x: Any, guess: bool | None = None) -> int:
         """Solve ``A x = b``; returns the iteration count; raises on divergence.
 
-        ``guess``: start from the content of ``x`` (else from 0); the tolerance stays
-        relative to the right-hand side, so a start near the solution saves iterations.
+        ``guess``: ``True`` starts from the content of ``x``, ``False`` from 0 (the
+        tolerance stays relative to the right-hand side, so a start near the solution
+        saves iterations); ``None`` keeps the solver's setting (PETSc's default: 0).
         """
         COUNTERS["solves"] += 1
-        self.ksp.setInitialGuessNonzero(bool(guess))
+        if guess is not None:
+            self.ksp.setInitialGuessNonzero(bool(guess))
         self.ksp.solve(b, x)
         reason = self.ksp.getConvergedReason()
         self.last_iterations = int(self.ksp.getIterationNumber())
