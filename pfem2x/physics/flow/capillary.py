@@ -171,7 +171,7 @@ def capillary_increment(
     d.axpy(-1.0, compat.petsc_vec(u_star))
     rhs, sol = d.duplicate(), d.duplicate()
     mass(d, rhs)
-    solver.solve(rhs, sol)
+    solver.solve(rhs, sol, guess=False)  # from 0: the predictor's solver starts from û
     us = compat.petsc_vec(u_star)
     us.axpy(1.0, sol)
     us.axpy(-1.0, d)
