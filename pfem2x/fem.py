@@ -114,17 +114,26 @@ class LinearSolver:
         """Use a new (or re-assembled) operator."""
         self.ksp.setOperators(A)
 
-    def solve(self, b: Any, x: Any, guess: bool | None = None) -> int:
+    def solve(self, b: Any, x: Any, guess: bool | None = None, rtol: float | None = None) -> int:
         """Solve ``A x = b``; returns the iteration count; raises on divergence.
 
         ``guess``: ``True`` starts from the content of ``x``, ``False`` from 0 (the
         tolerance stays relative to the right-hand side, so a start near the solution
         saves iterations); ``None`` keeps the solver's setting (PETSc's default: 0).
+        ``rtol``: the relative tolerance of this solve only (``None``: the solver's).
         """
         COUNTERS["solves"] += 1
         if guess is not None:
             self.ksp.setInitialGuessNonzero(bool(guess))
-        self.ksp.solve(b, x)
+        if rtol is None:
+            self.ksp.solve(b, x)
+        else:
+            keep = self.ksp.getTolerances()[0]
+            self.ksp.setTolerances(rtol=rtol)
+            try:
+                self.ksp.solve(b, x)
+            finally:
+                self.ksp.setTolerances(rtol=keep)
         reason = self.ksp.getConvergedReason()
         self.last_iterations = int(self.ksp.getIterationNumber())
         if reason < 0:

@@ -368,6 +368,19 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "moves (at least one per cell): its move only estimates the end of the step, "
             "the second pass moves every particle; 1: all",
         ),
+        "predictor_rtol": Key(
+            number(0.0, 1.0),
+            0.0,
+            doc="PFEM-2, extra_pass: the relative tolerance of the first pass's viscous and "
+            "pressure solves: its velocity only estimates the end of the step, the second "
+            "pass's solves keep flow.rtol; 0: flow.rtol",
+        ),
+        "predictor_divergence_rtol": Key(
+            number(0.0, 1.0),
+            0.0,
+            doc="PFEM-2, extra_pass, with flow.divergence_rtol > 0: the first pass's discrete "
+            "projection to this relative tolerance (1: none); 0: flow.divergence_rtol",
+        ),
         "viscous_step": Key(
             choice("sdirk2", "euler"),
             "sdirk2",
@@ -623,6 +636,8 @@ FRAME_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
             "flow.predictor",
             "flow.predictor_substeps",
             "flow.predictor_particles",
+            "flow.predictor_rtol",
+            "flow.predictor_divergence_rtol",
             "flow.viscous_step",
             "flow.explicit_pressure",
             "flow.pass_pressure",

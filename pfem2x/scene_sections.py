@@ -209,6 +209,8 @@ class FlowSection(Section):
     predictor: str
     predictor_substeps: float
     predictor_particles: float
+    predictor_rtol: float
+    predictor_divergence_rtol: float
     viscous_step: str
     pic_fraction: float
     pic_fraction_light: float

@@ -366,6 +366,63 @@ def test_predictor_particles_thin_the_first_pass_only(monkeypatch):
     assert 0.0 < du < 0.02 * u, (du, u)  # measured: 0.005 u (1 and 2 ranks)
 
 
+@pytest.mark.mpi
+def test_predictor_tolerances_loosen_the_first_pass_only(monkeypatch):
+    """``flow.predictor_rtol`` / ``predictor_divergence_rtol``: the first pass's solves only.
+
+    The first pass's viscous and pressure solves get ``predictor_rtol`` and its discrete
+    projection ``predictor_divergence_rtol``; the second pass and the start-of-step
+    pressure keep the scene's tolerances (``flow.rtol``, ``flow.divergence_rtol``); the
+    step's result moves, but stays close, with fewer iterations.
+    """
+    from pfem2x import fem
+    from pfem2x.physics.flow import projection
+
+    seen: list[tuple[bool, str, float | None]] = []
+    solve, polish = fem.LinearSolver.solve, projection._DiscreteProjection.polish
+    state = {"flow": None, "its": 0}
+
+    def spy_solve(self, b, x, guess=None, rtol=None):
+        seen.append((getattr(state["flow"], "_first_pass", None), "solve", rtol))
+        its = solve(self, b, x, guess, rtol)
+        state["its"] += its
+        return its
+
+    def spy_polish(self, u, p, dt, nullspace, rtol=None):
+        seen.append((getattr(state["flow"], "_first_pass", None), "discrete", rtol))
+        its = polish(self, u, p, dt, nullspace, rtol)
+        state["its"] += its
+        return its
+
+    monkeypatch.setattr(fem.LinearSolver, "solve", spy_solve)
+    monkeypatch.setattr(projection._DiscreteProjection, "polish", spy_polish)
+    runs = {}
+    default = ("flow.predictor_rtol=0", "flow.predictor_divergence_rtol=0")  # (the scene: not)
+    for keys in (default, ("flow.predictor_rtol=1e-4", "flow.predictor_divergence_rtol=0.2")):
+        state["flow"] = None  # (the set-up's solves: not a pass's)
+        s, _ = solver_for(*keys)
+        seen.clear()
+        state["flow"], state["its"] = s, 0
+        dt, t = 0.5, 0.0
+        for _ in range(3):
+            s.step(t, dt)
+            t += dt
+        first = {(kind, rtol) for f, kind, rtol in seen if f}
+        second = {(kind, rtol) for f, kind, rtol in seen if f is False}
+        want = {("solve", None), ("discrete", None)}
+        if keys != default:
+            want = {("solve", 1e-4), ("discrete", 0.2)}
+        assert first == want, first
+        assert second == {("solve", None), ("discrete", None)}, second
+        assert sum(f is True for f, *_ in seen) >= 3 * 3  # viscous, pressure, discrete
+        runs[keys] = (state["its"], s.u.x.array.copy())
+    (its1, u1), (its2, u2) = runs.values()
+    assert its2 < 0.9 * its1, (its2, its1)  # measured: 180 against 230 (2 ranks 190, 242)
+    du = MPI.COMM_WORLD.allreduce(float(np.abs(u2 - u1).max()), op=MPI.MAX)
+    u = MPI.COMM_WORLD.allreduce(float(np.abs(u1).max()), op=MPI.MAX)
+    assert 0.0 < du < 0.01 * u, (du, u)  # measured: 0.0025 u
+
+
 VORTEX = """
 [scene]
 name = "vortex"

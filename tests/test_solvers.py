@@ -1,4 +1,5 @@
-"""Linear solvers: pfem2x's BoomerAMG options, and the user's PETSc options winning over them.
+"""Linear solvers: one solve's own tolerance; pfem2x's BoomerAMG options, and the user's PETSc
+options winning over them.
 
 The options must reach hypre: aggressive coarsening changes the iteration count of a CG
 solve of a Poisson problem, so the counts with pfem2x's choice and with the user's
@@ -11,7 +12,7 @@ import ufl
 from pfem2x import compat, fem
 from pfem2x.compat import MPI, PETSc
 
-pytestmark = pytest.mark.skipif(not compat.has_hypre(), reason="PETSc without hypre")
+needs_hypre = pytest.mark.skipif(not compat.has_hypre(), reason="PETSc without hypre")
 
 KEYS = tuple(fem.HYPRE_OPTIONS)
 
@@ -30,6 +31,9 @@ def clean_options():
         opts[k] = v
 
 
+_ALIVE: list = []
+
+
 def poisson(n: int = 64):
     """A Poisson operator with a small mass shift (SPD) and a right-hand side of ones."""
     mesh = compat.dolfinx.mesh.create_unit_square(MPI.COMM_SELF, n, n)
@@ -40,6 +44,7 @@ def poisson(n: int = 64):
     A = compat.assemble_matrix(a)
     b = compat.create_vector(L)
     compat.assemble_vector(L, b)
+    _ALIVE.append((mesh, a, L))  # (DOLFINx 0.11: the vectors' communicator is the mesh's)
     return A, b
 
 
@@ -53,6 +58,23 @@ def iterations(A, b) -> int:
         x.destroy()
 
 
+def test_one_solve_with_its_own_tolerance():
+    """``solve(..., rtol=r)``: that solve stops at r, the solver keeps its own tolerance."""
+    A, b = poisson(32)
+    solver = fem.LinearSolver(A, "cg", "jacobi", rtol=1e-10)
+    x = b.duplicate()
+    try:
+        tight = solver.solve(b, x)
+        loose = solver.solve(b, x, guess=False, rtol=1e-3)
+        assert solver.ksp.getTolerances()[0] == 1e-10
+        assert solver.solve(b, x, guess=False) == tight
+        assert 0 < loose < 0.7 * tight, (loose, tight)
+    finally:
+        solver.destroy()
+        x.destroy()
+
+
+@needs_hypre
 def test_pfem2x_options_are_set_and_reach_hypre(clean_options):
     A, b = poisson()
     ours = iterations(A, b)
@@ -64,6 +86,7 @@ def test_pfem2x_options_are_set_and_reach_hypre(clean_options):
     assert ours != without_aggressive
 
 
+@needs_hypre
 def test_user_options_win(clean_options):
     A, b = poisson()
     clean_options["pc_hypre_boomeramg_coarsen_type"] = "Falgout"

@@ -48,6 +48,12 @@ only estimates the end of the step (:math:`u^{(1)}`, :math:`a^{(1)}`, the level 
 the second pass moves every particle from the start of the step as before
 (docs/BENCHMARKS.md, "The first pass's particles").
 
+``flow.predictor_rtol`` and ``flow.predictor_divergence_rtol`` (default 0: the scene's
+``flow.rtol`` and ``flow.divergence_rtol``) are the first pass's tolerances of its
+viscous and pressure solves and of its discrete projection
+(:meth:`TwoPasses._predictor_tolerances`); the second pass and the start of the step's
+consistent pressure keep the scene's (docs/RESULTS.md, "The first pass's solves").
+
 The second pass's viscous predictor (``flow.viscous_step = "sdirk2"``) is the two-stage
 L-stable SDIRK method (:meth:`TwoPasses._viscous_sdirk2`), second order in
 :math:`\Delta t`, instead of backward Euler, whose first-order decay the particles
@@ -160,6 +166,7 @@ class TwoPasses:
                 self._a_old.x.array[:] = force_old
         self._substep_scale = float(self.scene.flow.predictor_substeps)
         self._first_pass = True
+        self._predictor_tolerances(True)
         try:
             if guess is None:
                 self._pass(dt, 0.0)
@@ -168,6 +175,7 @@ class TwoPasses:
                 self._pass(dt, 0.5, (force_old, guess[1], 1))
         finally:
             self._substep_scale, self._first_pass = 1.0, False
+            self._predictor_tolerances(False)
         if self.consistent_end_source:
             self._consistent_pressure()  # a^(1) from the pressure of u^(1)
         self._viscous_l_stable = sdirk
@@ -185,6 +193,17 @@ class TwoPasses:
                 self._pass(dt, 0.5)
         finally:
             self._viscous_l_stable = False
+
+    def _predictor_tolerances(self, first: bool) -> None:
+        """The pressure step's solve tolerances of the first pass (``first``) or the scene's.
+
+        ``flow.predictor_rtol`` (the viscous and pressure solves) and
+        ``flow.predictor_divergence_rtol`` (the discrete projection), where > 0.
+        """
+        fl, proj = self.scene.flow, self.projection
+        rtol, div_rtol = float(fl.predictor_rtol), float(fl.predictor_divergence_rtol)
+        proj.pass_rtol = rtol if first and rtol > 0.0 else None
+        proj.pass_divergence_rtol = div_rtol if first and div_rtol > 0.0 else None
 
     def _viscous_sdirk2(self, dt: float) -> None:
         r"""The viscous predictor of a :math:`\theta = 1/2` pass: two-stage L-stable SDIRK.

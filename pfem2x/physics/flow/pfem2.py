@@ -545,8 +545,8 @@ class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers,
         elif self.viscous:
             with self.timer("solve"):
                 self.u_star.x.array[:] = self.u_hat.x.array  # the start: no viscous change
-                it = self.m_solver.solve(self.b_m, compat.petsc_vec(self.u_star), guess=True)
-                proj.iterations["momentum"] = it
+                x, rtol = compat.petsc_vec(self.u_star), proj.pass_rtol  # (first pass: its own)
+                proj.iterations["momentum"] = self.m_solver.solve(self.b_m, x, True, rtol)
                 self.u_star.x.scatter_forward()
         else:
             with self.timer("assembly"):

@@ -182,6 +182,10 @@ class PressureProjection:
             self._discrete = _DiscreteProjection(V, Q, rho, dxq, self)
         #: iteration counts of the last solves, by equation
         self.iterations: dict[str, int] = {}
+        #: the relative tolerances of the current pass's pressure solve and discrete
+        #: projection where they differ from the scene's (PFEM-2's first pass), else None
+        self.pass_rtol: float | None = None
+        self.pass_divergence_rtol: float | None = None
 
     def _cellwise_forms(
         self, V: Any, Q: Any, gdim: int, dxq: Any, rho: Any, cell_dofs: np.ndarray | None
@@ -256,7 +260,9 @@ class PressureProjection:
         if self.nullspace is not None:
             self.nullspace.remove(self.b_p)
         with self.timer("solve"):
-            self.iterations["pressure"] = self.p_solver.solve(self.b_p, compat.petsc_vec(x))
+            self.iterations["pressure"] = self.p_solver.solve(
+                self.b_p, compat.petsc_vec(x), rtol=self.pass_rtol
+            )
             x.x.scatter_forward()
 
     def initial_pressure(self, p: Any) -> None:
@@ -307,7 +313,9 @@ class PressureProjection:
             p.x.array[:] = self.dp.x.array
         if self._discrete is not None:
             with self.timer("solve"):
-                self.iterations["discrete"] = self._discrete.polish(u, p, dt, self.nullspace)
+                self.iterations["discrete"] = self._discrete.polish(
+                    u, p, dt, self.nullspace, self.pass_divergence_rtol
+                )
 
 
 class _DiscreteProjection:
@@ -374,19 +382,23 @@ class _DiscreteProjection:
         pc.setPythonContext(_SharedPC(p_solver.ksp.getPC()))
         self.ksp = ksp
 
-    def polish(self, u: Any, p: Any, dt: float, nullspace: Any) -> int:
+    def polish(self, u: Any, p: Any, dt: float, nullspace: Any, rtol: float | None = None) -> int:
         """``u -= dt P M^-1 G q``, ``p += q``: ``S q = -D u / dt`` (collective); GMRES iterations.
 
         ``u`` is the approximately projected velocity, ``q`` removes what is left of
         its weak divergence (nothing at rest: a balanced state stays balanced).
+        ``rtol``: this solve's relative tolerance (``None``: :attr:`rtol`; 1 or more:
+        nothing done).
         """
+        if rtol is not None and rtol >= 1.0:
+            return 0
         uv = compat.petsc_vec(u)
         self.D.mult(uv, self.rhs)
         self.rhs.scale(-1.0 / dt)
         if nullspace is not None:
             nullspace.remove(self.rhs)
         self.q.set(0.0)
-        its = self.solve(self.rhs, self.q)
+        its = self.solve(self.rhs, self.q, rtol)
         self.G.mult(self.q, self.du)  # P M^-1 G q
         n = len(self.du.array_r)
         u.x.array[:n] -= dt * self.du.array_r
@@ -396,16 +408,18 @@ class _DiscreteProjection:
         p.x.scatter_forward()
         return its
 
-    def solve(self, b: Any, x: Any) -> int:
+    def solve(self, b: Any, x: Any, rtol: float | None = None) -> int:
         """GMRES on ``S`` from 0; its iterate is kept when it stops short of the tolerance.
 
         The weak divergence left by the P1 pair's pressure modes is out of ``S``'s
         range: GMRES then stagnates (a breakdown, or :attr:`MAX_IT` iterations)
         with the smallest residual it found, which is what the correction uses.
-        Raises on a non-finite residual.
+        Raises on a non-finite residual. ``rtol``: this solve's tolerance (``None``:
+        :attr:`rtol`).
         """
         ksp = self.ksp
         fem.COUNTERS["solves"] += 1
+        ksp.setTolerances(rtol=self.rtol if rtol is None else rtol)
         ksp.solve(b, x)
         reason = ksp.getConvergedReason()
         if reason < 0 and reason not in self.STALLED:
