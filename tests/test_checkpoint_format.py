@@ -63,13 +63,15 @@ def test_checkpoint_with_extra_entries_resumes_bit_identically(tmp_path, frame):
     # DOLFINx 0.11 (PyPI wheel): the resumed flow-lagrangian run's metrics depend on the
     # interpreter's hash seed when the form kernels come from FFCx's disk cache filled by
     # other processes (PYTHONHASHSEED 0-11: three outcomes, up to 8e-16 relative; with a
-    # fresh cache every seed gives the uninterrupted run's bits). Round-off is asserted.
+    # fresh cache every seed gives the uninterrupted run's bits). Round-off is asserted:
+    # relative, and absolute for the metrics that are round-off themselves (the phase
+    # volumes' relative changes, ~5e-16: 6.6e-16 against 4.4e-16 with two hash seeds)
     ma, mb = ra.summary["metrics"], rb.summary["metrics"]
     assert ma.keys() == mb.keys()
     for k, va in ma.items():
         a, b = np.asarray(va, dtype=float), np.asarray(mb[k], dtype=float)
         assert a.shape == b.shape, k
-        assert np.all(np.abs(a - b) <= 1e-13 * np.maximum(np.abs(a), 1e-300)), k
+        assert np.all(np.abs(a - b) <= 1e-13 * np.abs(a) + 1e-15), k
 
 
 @serial_052
