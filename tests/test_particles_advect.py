@@ -325,7 +325,7 @@ def test_theta_stage_without_contraction_terminates(comm):
     assert comm.allreduce(err, op=MPI.MAX) < 1e-9
 
 
-@pytest.mark.parametrize("mode", ["courant", "fixed", "theta", "blend"])
+@pytest.mark.parametrize("mode", ["courant", "fixed", "theta", "blend", "blend-sparse"])
 def test_triangle_fast_path_equals_generic_loop(mode):
     """The 2D move (its regular sub-steps' loop, then the per-particle loop) is the generic loop.
 
@@ -333,7 +333,9 @@ def test_triangle_fast_path_equals_generic_loop(mode):
     :func:`_advect_p1_any`: positions, cells, displacements, source integrals
     and sub-step counts equal to the last bit (walls, periodic wrap, the
     theta stage, velocity and source linear in time and particles stopping
-    at an outflow included).
+    at an outflow included). The 2D loop takes the gradient's sub-step rate
+    from a per-cell table when there are at least as many particles as cells
+    (``blend``) and per sub-step otherwise (``blend-sparse``).
     """
     from pfem2x.particles import _kernels as K  # noqa: PLC0415
 
@@ -341,7 +343,8 @@ def test_triangle_fast_path_equals_generic_loop(mode):
         MPI.COMM_SELF, "rectangle", [[0.0, 0.0], [2.0, 1.0]], [20, 10], periodic=[True, False]
     )
     cl = Cloud(d, {"T": ()}, outflow=lambda x: (x[:, 1] > 1.0 - 1e-9) & (x[:, 0] > 1.5))
-    seed_cells(cl, 6, seed=5)
+    sparse = mode == "blend-sparse"
+    seed_cells(cl, 6, seed=5, region=(lambda x: x[:, 0] > 1.8) if sparse else None)
     V = compat.function_space(d.mesh, 1, (2,))
     u, u1, f = (dolfinx.fem.Function(V) for _ in range(3))
     u.interpolate(lambda x: np.stack([1.5 + np.sin(3 * x[1]), 0.8 * np.cos(2 * np.pi * x[0])]))
@@ -351,8 +354,10 @@ def test_triangle_fast_path_equals_generic_loop(mode):
     un, un1, q = (np.asarray(g.x.array).reshape(-1, 2).copy() for g in (u, u1, f))
     dt, theta = 0.4, (0.5 if mode == "theta" else 0.0)
     nsub = 9 if mode == "fixed" else 0
-    blend = mode == "blend"
+    blend = mode.startswith("blend")
     du, dq = (un1 - un, 0.3 * q[:, ::-1].copy()) if blend else (np.zeros((1, 1)),) * 2
+    table = K._gradient_rates(un, du, M.dofs, M.inv, 0.1, blend, nsub, cl.n)
+    assert len(table) == (0 if sparse or nsub else len(M.dofs))
     results = []
     for kern in (K._advect_p1_tri, K._advect_p1_any):
         n = cl.n

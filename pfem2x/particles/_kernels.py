@@ -601,6 +601,32 @@ def _grad_norm_end_s(un, du, d0, d1, d2, d3, c, inv, dim):
     return np.sqrt(gs)
 
 
+@njit(cache=True, error_model="numpy")
+def _gradient_rates(un, du, dofs, inv, gcourant, blend, nsub, n):
+    """Each triangle's sub-step rate from the velocity gradient, or an empty array.
+
+    ``max(|grad un|, |grad (un + du)|) / gcourant`` (the second with ``blend``): what
+    :func:`_path_tri` would compute at each sub-step in the cell, the same to the bit,
+    once per move. Empty (computed per sub-step) for fixed sub-steps (``nsub > 0``),
+    ``gcourant = 0`` or fewer particles ``n`` than cells.
+    """
+    ncells = dofs.shape[0]
+    if nsub > 0 or not gcourant > 0.0 or n < ncells:
+        return np.zeros(0)
+    rate = np.empty(ncells)
+    for c in range(ncells):
+        d0 = dofs[c, 0]
+        d1 = dofs[c, 1]
+        d2 = dofs[c, 2]
+        g = _grad_norm_s(un, d0, d1, d2, 0, c, inv, 2) / gcourant
+        if blend:
+            ge = _grad_norm_end_s(un, du, d0, d1, d2, 0, c, inv, 2) / gcourant
+            if ge > g:
+                g = ge
+        rate[c] = g
+    return rate
+
+
 # Deliberately two entry points of one loop: _advect_p1_tri passes dim as the literal 2 so
 # numba compiles the 2D loop without the other dimensions' branches; _advect_p1_any reads it.
 @njit(cache=True, error_model="numpy")
@@ -655,6 +681,7 @@ def _path_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, has_q,
     nsteps = 0
     t0 = t1 = 0.0  # the time fractions of a sub-step's ends (blend)
     z0 = z1 = 0.0  # the change of the velocity over the move at a sub-step's start (blend)
+    grate = _gradient_rates(un, du, dofs, inv, gcourant, blend, nsub, n)
     for p in range(n):
         if stage[p] != STAGE_PATH or not t_left[p] > tol:
             continue
@@ -696,7 +723,11 @@ def _path_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, has_q,
                     if sq > sp:
                         sp = sq
                 rate = np.sqrt(sp) / (courant * hc[c])
-                if gcourant > 0.0:
+                if grate.shape[0] > 0:
+                    gr = grate[c]
+                    if gr > rate:
+                        rate = gr
+                elif gcourant > 0.0:
                     gr = _grad_norm_s(un, d0, d1, d2, 0, c, inv, 2) / gcourant
                     if gr > rate:
                         rate = gr
@@ -1282,6 +1313,24 @@ def neighbour_fill_accumulate(dofs, n_owned, filled, vals, acc):
                     acc[di, 0] += 1.0
                     for j in range(k):
                         acc[di, 1 + j] += vals[dm, j]
+
+
+@njit(cache=True, error_model="numpy")
+def share_drop(cells, ncells, share):
+    """Drop mask keeping a share of each cell's particles (in storage order).
+
+    A particle of rank ``r`` among its cell's particles (storage order) is kept when
+    ``r = 0`` or ``floor(r share) > floor((r - 1) share)``.
+    """
+    n = cells.shape[0]
+    count = np.zeros(ncells, dtype=np.int64)
+    drop = np.empty(n, dtype=np.bool_)
+    for p in range(n):
+        c = cells[p]
+        r = count[c]
+        count[c] = r + 1
+        drop[p] = not (r == 0 or np.floor(r * share) > np.floor((r - 1) * share))
+    return drop
 
 
 @njit(cache=True, error_model="numpy")

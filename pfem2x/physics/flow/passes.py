@@ -112,12 +112,7 @@ def _predictor_drop(cells: np.ndarray, n_cells: int, share: float) -> np.ndarray
     :math:`n` (:math:`\lceil n s\rceil` for :math:`s = 1/k`).
     Returns a boolean mask of the particles to drop.
     """
-    order, offsets = K.counting_sort(cells, n_cells)
-    rank = np.arange(len(order)) - offsets[cells[order]]
-    keep = (rank == 0) | (np.floor(rank * share) > np.floor((rank - 1) * share))
-    drop = np.empty(len(order), dtype=bool)
-    drop[order] = ~keep
-    return drop
+    return K.share_drop(cells, n_cells, float(share))
 
 
 class TwoPasses:
