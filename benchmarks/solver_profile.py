@@ -55,18 +55,18 @@ class SolverClock:
         solve = fem.LinearSolver.solve
         discrete = projection._DiscreteProjection.solve
 
-        def timed_solve(self: fem.LinearSolver, b: Any, x: Any) -> int:
+        def timed_solve(self: fem.LinearSolver, b: Any, x: Any, *args: Any, **kw: Any) -> int:
             key = f"{self.ksp.getType()}/{self.ksp.getPC().getType()}"
             t0 = time.perf_counter()
             self.ksp.setUp()
             t1 = time.perf_counter()
-            its = solve(self, b, x)
+            its = solve(self, b, x, *args, **kw)
             clock.add(key, t1 - t0, time.perf_counter() - t1, its)
             return its
 
-        def timed_discrete(self: Any, b: Any, x: Any) -> int:
+        def timed_discrete(self: Any, b: Any, x: Any, *args: Any, **kw: Any) -> int:
             t0 = time.perf_counter()
-            its = discrete(self, b, x)
+            its = discrete(self, b, x, *args, **kw)
             clock.add("discrete/gmres", 0.0, time.perf_counter() - t0, its)
             return its
 

@@ -1,4 +1,4 @@
-"""``benchmarks/move_replay.py``: a run's moves saved and re-run to the bit."""
+"""The measuring tools of ``benchmarks/``: they run on the current code."""
 
 import importlib.util
 from pathlib import Path
@@ -6,10 +6,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _module():
-    spec = importlib.util.spec_from_file_location(
-        "move_replay", ROOT / "benchmarks" / "move_replay.py"
-    )
+def _module(name: str = "move_replay"):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
@@ -35,3 +33,22 @@ def test_saved_moves_replay_to_the_same_end_state(tmp_path, capsys):
     assert mod.main(["replay", str(tmp_path / "none.pkl")]) == 2
     assert "error:" in capsys.readouterr().err
     assert mod.main(["save", "rayleigh-taylor", str(moves), "--count", "0"]) == 2
+
+
+def test_solver_profile_times_every_kind_of_solve(monkeypatch, capsys):
+    """``benchmarks/solver_profile.py`` on Rayleigh-Taylor's small variant: every solve kind.
+
+    Its wrappers pass every argument of the solves on (a solve with its own tolerance
+    included); the originals are restored after the test.
+    """
+    from pfem2x import fem
+    from pfem2x.physics.flow import projection
+
+    monkeypatch.setattr(fem.LinearSolver, "solve", fem.LinearSolver.solve)
+    monkeypatch.setattr(
+        projection._DiscreteProjection, "solve", projection._DiscreteProjection.solve
+    )
+    mod = _module("solver_profile")
+    assert mod.main(["rayleigh-taylor", "--variant", "small"]) == 0
+    out = capsys.readouterr().out
+    assert "cg/jacobi" in out and "discrete/gmres" in out and "solve timer" in out
