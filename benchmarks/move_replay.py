@@ -16,8 +16,8 @@ checks that every move's end state equals the one in that earlier replay's
         moves.pkl --compare ../pfem2x/now.npz)
 
 The Rayleigh–Taylor scene (100 × 400, Courant 8) makes two moves a step (the
-first pass on half the particles, the second on all of them); moves 40–47 are
-those of steps 20–23 (about 3 sub-steps per particle).
+first pass on half the particles, the second on all of them), 68 in the run;
+moves 40–47 are four steps' two passes (about 3 sub-steps per particle).
 """
 
 from __future__ import annotations
@@ -65,15 +65,17 @@ def save(
         calls[0] += 1
         return orig(P, un, un1, du, q, dq, S, M)
 
-    K.advect_p1 = wrapped
     args = ["run", scene, "--quiet", "--overwrite"]
     if variant:
         args += ["--variant", variant]
     for kv in (*QUIET, *extra):
         args += ["--set", kv]
-    with tempfile.TemporaryDirectory() as tmp:
-        code = cli.main([*args, "--out", str(Path(tmp) / "run")])
-    K.advect_p1 = orig
+    K.advect_p1 = wrapped
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            code = cli.main([*args, "--out", str(Path(tmp) / "run")])
+    finally:
+        K.advect_p1 = orig
     if code:
         print(f"error: the run of {scene} failed (exit {code})", file=sys.stderr)
         return 2
