@@ -77,7 +77,8 @@ def save(
     finally:
         K.advect_p1 = orig
     if code:
-        print(f"error: the run of {scene} failed (exit {code})", file=sys.stderr)
+        if code != 2:  # exit 2: the run said what was wrong with its input
+            print(f"error: the run of {scene} failed (exit {code})", file=sys.stderr)
         return 2
     if len(saved) < count:
         print(
@@ -129,6 +130,8 @@ def replay(path: Path, repeat: int, state: Path | None, compare: Path | None) ->
         np.savez(state, **ends)
     if compare is not None:
         ref = np.load(compare)
+        if set(ref.files) != set(ends):
+            raise ValueError("the end states of other moves")
         same = all(np.array_equal(ref[k], v) for k, v in ends.items())
         print("end states equal to", compare, "to the bit:", "yes" if same else "NO")
     return rows
@@ -164,7 +167,12 @@ def main(argv: list[str] | None = None) -> int:
     if a.repeat < 1:
         print("error: --repeat must be >= 1", file=sys.stderr)
         return 2
-    rows = replay(a.file, a.repeat, a.state, a.compare)
+    try:
+        rows = replay(a.file, a.repeat, a.state, a.compare)
+    except (OSError, EOFError, pickle.UnpicklingError, ValueError, TypeError, IndexError) as e:
+        files = f"{a.file}" + (f" or {a.compare}" if a.compare is not None else "")
+        print(f"error: {files}: not moves saved by 'save' or their states ({e})", file=sys.stderr)
+        return 2
     print(f"{'move':>4} {'particles':>9} {'blend':>5} {'sub-steps':>9} {'ms':>8} {'M sub/s':>8}")
     for x in rows:
         print(

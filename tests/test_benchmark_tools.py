@@ -33,6 +33,10 @@ def test_saved_moves_replay_to_the_same_end_state(tmp_path, capsys):
     assert mod.main(["replay", str(tmp_path / "none.pkl")]) == 2
     assert "error:" in capsys.readouterr().err
     assert mod.main(["save", "rayleigh-taylor", str(moves), "--count", "0"]) == 2
+    garbage = tmp_path / "garbage.pkl"
+    garbage.write_bytes(b"not a pickle")
+    assert mod.main(["replay", str(garbage)]) == 2
+    assert "error:" in capsys.readouterr().err
 
 
 def test_solver_profile_times_every_kind_of_solve(monkeypatch, capsys):
