@@ -8,7 +8,7 @@ checkout it is started from, each from a copy of its saved state, and prints
 per move the particles, the sub-steps, the median time of ``--repeat`` runs
 and the sub-steps per second; ``--json`` writes them, ``--compare FILE`` also
 checks that every move's end state equals the one in that earlier replay's
-``--state`` file to the bit.
+``--state`` file to the bit (exit status 1 when one does not).
 
     python benchmarks/move_replay.py save rayleigh-taylor moves.pkl --first 40 --count 8
     python benchmarks/move_replay.py replay moves.pkl --state now.npz
@@ -91,8 +91,14 @@ def save(
     return 0
 
 
-def replay(path: Path, repeat: int, state: Path | None, compare: Path | None) -> list[dict]:
-    """Re-run the saved moves with this checkout's kernel; per move a dict of figures."""
+def replay(
+    path: Path, repeat: int, state: Path | None, compare: Path | None
+) -> tuple[list[dict], bool | None]:
+    """Re-run the saved moves with this checkout's kernel.
+
+    Returns per move a dict of figures, and with ``compare`` whether every end
+    state equals that file's to the bit (else None).
+    """
     import pfem2x.particles._kernels as K  # noqa: PLC0415
 
     with open(path, "rb") as f:
@@ -128,13 +134,14 @@ def replay(path: Path, repeat: int, state: Path | None, compare: Path | None) ->
             ends[f"{i}_{name}"] = a
     if state is not None:
         np.savez(state, **ends)
+    same = None
     if compare is not None:
         ref = np.load(compare)
         if set(ref.files) != set(ends):
             raise ValueError("the end states of other moves")
         same = all(np.array_equal(ref[k], v) for k, v in ends.items())
         print("end states equal to", compare, "to the bit:", "yes" if same else "NO")
-    return rows
+    return rows, same
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -168,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
         print("error: --repeat must be >= 1", file=sys.stderr)
         return 2
     try:
-        rows = replay(a.file, a.repeat, a.state, a.compare)
+        rows, same = replay(a.file, a.repeat, a.state, a.compare)
     except (OSError, EOFError, pickle.UnpicklingError, ValueError, TypeError, IndexError) as e:
         files = f"{a.file}" + (f" or {a.compare}" if a.compare is not None else "")
         print(f"error: {files}: not moves saved by 'save' or their states ({e})", file=sys.stderr)
@@ -184,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"total {1e3 * total:.1f} ms, {steps / total / 1e6:.2f} M sub-steps/s")
     if a.json is not None:
         a.json.write_text(json.dumps({"moves": rows, "total_seconds": total}, indent=1) + "\n")
-    return 0
+    return 1 if same is False else 0
 
 
 if __name__ == "__main__":

@@ -17,6 +17,12 @@ be compared one run each (one run at a time on an otherwise idle machine)::
         python benchmarks/solver_profile.py rayleigh-taylor --metric tip_error_tau2
     mpirun -n 2 python benchmarks/solver_profile.py rayleigh-taylor
 
+``--time MODULE:NAME`` (repeatable) also times every call of a function or method of
+the run, as the run's code reaches it: ``pfem2x.particles:project`` (the flow frames
+call the package's name), ``pfem2x.particles.cloud:Cloud.sort_by_cell``::
+
+    python benchmarks/solver_profile.py rayleigh-taylor --time pfem2x.particles:project
+
 Pictures, fields and particle files are off; ``--set KEY=VALUE`` adds overrides.
 Timings are for comparing options, not targets: those live in ``rt_profile.py``
 and ``step_cost.py``.
@@ -26,7 +32,9 @@ from __future__ import annotations
 
 import argparse
 import collections
+import importlib
 import json
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -95,6 +103,60 @@ class SolverClock:
         return "\n".join(rows)
 
 
+class CallClock:
+    """Seconds and calls of named functions (``MODULE:NAME``), while installed."""
+
+    def __init__(self, names: list[str]) -> None:
+        self.names = names
+        self.seconds: dict[str, float] = collections.defaultdict(float)
+        self.calls: collections.Counter[str] = collections.Counter()
+        self._undo: list[tuple[Any, str, Any]] = []
+
+    def install(self) -> None:
+        """Wrap each named function; ``ValueError`` naming one that does not resolve."""
+        for name in self.names:
+            mod, _, path = name.partition(":")
+            try:
+                parent = importlib.import_module(mod)
+                *head, last = path.split(".")
+                for part in head:
+                    parent = getattr(parent, part)
+                fn = getattr(parent, last)
+            except (ImportError, AttributeError, ValueError) as exc:
+                self.uninstall()
+                raise ValueError(f"--time {name}: {exc}") from None
+            if not callable(fn):
+                self.uninstall()
+                raise ValueError(f"--time {name}: not a function")
+            self._undo.append((parent, last, parent.__dict__.get(last, fn)))
+            setattr(parent, last, self._timed(name, fn))
+
+    def _timed(self, name: str, fn: Any) -> Any:
+        clock = self
+
+        def timed(*args: Any, **kw: Any) -> Any:
+            t0 = time.perf_counter()
+            try:
+                return fn(*args, **kw)
+            finally:
+                clock.seconds[name] += time.perf_counter() - t0
+                clock.calls[name] += 1
+
+        return timed
+
+    def uninstall(self) -> None:
+        """Put the original functions back."""
+        for parent, last, orig in reversed(self._undo):
+            setattr(parent, last, orig)
+        self._undo.clear()
+
+    def table(self) -> str:
+        """Markdown rows: function, calls, seconds."""
+        rows = ["| function | calls | s |", "|---|---:|---:|"]
+        rows += [f"| {n} | {self.calls[n]} | {self.seconds[n]:.3f} |" for n in self.names]
+        return "\n".join(rows)
+
+
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     """Command line."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -102,6 +164,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--variant", default=None, help="the scene's variant")
     ap.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--metric", action="append", default=[], help="summary metric to print")
+    ap.add_argument(
+        "--time", action="append", default=[], metavar="MODULE:NAME", help="also time this"
+    )
     return ap.parse_args(argv)
 
 
@@ -109,6 +174,13 @@ def main(argv: list[str] | None = None) -> int:
     """Run the scene with the solvers timed; rank 0 prints the table."""
     args = parse_args(argv)
     comm = MPI.COMM_WORLD
+    calls = CallClock(args.time)
+    try:
+        calls.install()
+    except ValueError as exc:
+        if comm.rank == 0:
+            print(f"error: {exc}", file=sys.stderr)
+        return 2
     clock = SolverClock()
     clock.install()
     tmp = tempfile.mkdtemp(prefix="solver_profile_") if comm.rank == 0 else None
@@ -122,11 +194,15 @@ def main(argv: list[str] | None = None) -> int:
         code = pfem2x_main(cmd)
     except SystemExit as exc:  # the command line ends with sys.exit
         code = exc.code
+    finally:
+        calls.uninstall()
     if code not in (0, None):
         return int(code) if isinstance(code, int) else 1
     if comm.rank == 0:
         s = json.loads((out / "summary.json").read_text())
         print(clock.table())
+        if args.time:
+            print("\n" + calls.table())
         line = f"\nwall {s['wall_seconds']:.2f} s, solve timer {s['timings'].get('solve', 0):.2f} s"
         for m in args.metric:
             line += f", {m} {s['metrics'].get(m)}"

@@ -3,6 +3,8 @@
 import importlib.util
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -25,10 +27,18 @@ def test_saved_moves_replay_to_the_same_end_state(tmp_path, capsys):
                      "--first", "2", "--count", "2"]) == 0  # fmt: skip
     state = tmp_path / "a.npz"
     assert mod.main(["replay", str(moves), "--repeat", "1", "--state", str(state)]) == 0
-    rows = mod.replay(moves, 1, None, state)
+    rows, same = mod.replay(moves, 1, None, state)
     out = capsys.readouterr().out
-    assert "to the bit: yes" in out
+    assert same is True and "to the bit: yes" in out
     assert len(rows) == 2 and all(r["substeps"] >= r["particles"] > 0 for r in rows)
+    assert mod.main(["replay", str(moves), "--repeat", "1", "--compare", str(state)]) == 0
+    # end states that differ: "NO" and exit status 1
+    ends = dict(np.load(state))
+    ends["0_x"] = ends["0_x"] + 1e-12
+    other = tmp_path / "other.npz"
+    np.savez(other, **ends)
+    assert mod.main(["replay", str(moves), "--repeat", "1", "--compare", str(other)]) == 1
+    assert "to the bit: NO" in capsys.readouterr().out
     # bad input: one error line, exit 2
     assert mod.main(["replay", str(tmp_path / "none.pkl")]) == 2
     assert "error:" in capsys.readouterr().err
@@ -43,9 +53,13 @@ def test_solver_profile_times_every_kind_of_solve(monkeypatch, capsys):
     """``benchmarks/solver_profile.py`` on Rayleigh-Taylor's small variant: every solve kind.
 
     Its wrappers pass every argument of the solves on (a solve with its own tolerance
-    included); the originals are restored after the test.
+    included); the originals are restored after the test. ``--time`` times named
+    functions (a package's name, a class's method) and puts them back after the run;
+    a name that does not resolve is one error line and exit 2.
     """
     from pfem2x import fem
+    from pfem2x import particles as P
+    from pfem2x.particles.cloud import Cloud
     from pfem2x.physics.flow import projection
 
     monkeypatch.setattr(fem.LinearSolver, "solve", fem.LinearSolver.solve)
@@ -53,6 +67,23 @@ def test_solver_profile_times_every_kind_of_solve(monkeypatch, capsys):
         projection._DiscreteProjection, "solve", projection._DiscreteProjection.solve
     )
     mod = _module("solver_profile")
-    assert mod.main(["rayleigh-taylor", "--variant", "small"]) == 0
+    project, sort = P.project, Cloud.__dict__["sort_by_cell"]
+    times = [
+        "--time",
+        "pfem2x.particles:project",
+        "--time",
+        "pfem2x.particles.cloud:Cloud.sort_by_cell",
+    ]
+    assert mod.main(["rayleigh-taylor", "--variant", "small", *times]) == 0
     out = capsys.readouterr().out
     assert "cg/jacobi" in out and "discrete/gmres" in out and "solve timer" in out
+    rows = {r.split("|")[1].strip(): r.split("|")[2:4] for r in out.splitlines() if ":" in r}
+    for name in ("pfem2x.particles:project", "pfem2x.particles.cloud:Cloud.sort_by_cell"):
+        calls, secs = (float(v) for v in rows[name])
+        assert calls > 10 and secs > 0.0
+    assert P.project is project and Cloud.__dict__["sort_by_cell"] is sort
+    for bad in ("pfem2x.particles:no_such", "no_such_module:f", "pfem2x.particles"):
+        assert mod.main(["rayleigh-taylor", "--variant", "small", "--time", bad]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: --time") and err.count("\n") == 1
+    assert P.project is project
