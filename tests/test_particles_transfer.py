@@ -149,3 +149,35 @@ def test_empty_nodes_keep_or_neighbours(comm):
     xx = V.tabulate_dof_coordinates()
     assert np.allclose(vals[np.isclose(xx[:, 0], 0.75)], 2.0)
     assert np.allclose(vals[np.isclose(xx[:, 0], 1.0)], -7.0)
+
+
+def test_written_out_linear_moments_equal_the_loop():
+    """The 2D linear moments of 1 and 2 components are the per-component loop's to the bit.
+
+    :func:`_project_linear_tri` (fields of 1 or 2 components) writes out the
+    loop of :func:`_project_accumulate_tri`, which still serves 3 components:
+    the first components of a 3-component field give the same columns. Particles
+    outside their cell (weights clipped to [0, 1]) and an unsorted cloud included.
+    """
+    from pfem2x.particles import _kernels as K  # noqa: PLC0415
+
+    d, cl, _ = _setup(MPI.COMM_SELF, n=6, per_cell=7, seed=4)
+    rng = np.random.default_rng(2)
+    cl.x[:] += rng.normal(scale=0.02, size=cl.x.shape)  # some a little outside their cell
+    perm = rng.permutation(cl.n)
+    x, cells = np.ascontiguousarray(cl.x[perm]), np.ascontiguousarray(cl.cells[perm])
+    vals3 = np.ascontiguousarray(np.stack([np.sin(3 * x[:, 0]), x[:, 1] ** 2, x[:, 0]], axis=1))
+    M = cl.pmesh.arrays
+
+    def moments(vals):
+        k = vals.shape[1]
+        acc = np.zeros((cl.pmesh.n_dofs, 8 + 3 * k))
+        K.project_accumulate(x, cells, np.ascontiguousarray(vals), M, acc, True)
+        return acc
+
+    a3 = moments(vals3)
+    assert (a3[:, 5] > 0).all()  # every node has particles
+    for k in (1, 2):
+        a = moments(vals3[:, :k])
+        assert np.array_equal(a[:, : 8 + k], a3[:, : 8 + k])  # weights, geometry, W*T
+        assert np.array_equal(a[:, 8 + k :], a3[:, 11 : 11 + 2 * k])  # W*T*dx

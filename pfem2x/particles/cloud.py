@@ -331,7 +331,7 @@ class Cloud:
         ``offsets[c]:offsets[c+1]`` are the particles of local cell ``c``.
         """
         order, offsets = K.counting_sort(self.cells, self.pmesh.n_cells)
-        if not np.array_equal(order, np.arange(self._n)):
+        if not K.is_identity(order):
             self._take(order)
         self._offsets = offsets
         return offsets

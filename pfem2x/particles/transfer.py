@@ -116,12 +116,15 @@ def project(
     compat.scatter_reverse_add(vec)
     compat.scatter_forward(vec)
     nd = acc.shape[0]
-    out = np.zeros((nd, k))
     filled = np.zeros(nd, dtype=bool)
     fb = np.zeros(nd, dtype=bool)
-    K.project_solve(acc, g, k, linear, out, filled, fb, float(min_spread), float(max_extrap))
     tgt = _target_array(pm, target, k)
-    tgt[:nd][filled] = out[filled]
+    # the kernel writes the filled rows only: straight into a C-contiguous target
+    direct = tgt[:nd].flags.c_contiguous
+    out = tgt[:nd] if direct else np.zeros((nd, k))
+    K.project_solve(acc, g, k, linear, out, filled, fb, float(min_spread), float(max_extrap))
+    if not direct:
+        tgt[:nd][filled] = out[filled]
     # one reduction for the statistics and the question whether any node is empty
     own = pm.n_dofs_owned
     empty_here = ~filled
