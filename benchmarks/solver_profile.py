@@ -128,8 +128,12 @@ class CallClock:
             if not callable(fn):
                 self.uninstall()
                 raise ValueError(f"--time {name}: not a function")
-            self._undo.append((parent, last, parent.__dict__.get(last, fn)))
-            setattr(parent, last, self._timed(name, fn))
+            raw = vars(parent).get(last)  # None: inherited, removed again afterwards
+            self._undo.append((parent, last, raw))
+            timed = self._timed(name, fn)
+            if isinstance(raw, (staticmethod, classmethod)):
+                timed = staticmethod(timed)  # fn is bound already (or needs no instance)
+            setattr(parent, last, timed)
 
     def _timed(self, name: str, fn: Any) -> Any:
         clock = self
@@ -147,7 +151,10 @@ class CallClock:
     def uninstall(self) -> None:
         """Put the original functions back."""
         for parent, last, orig in reversed(self._undo):
-            setattr(parent, last, orig)
+            if orig is None:
+                delattr(parent, last)
+            else:
+                setattr(parent, last, orig)
         self._undo.clear()
 
     def table(self) -> str:
