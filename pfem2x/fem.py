@@ -40,11 +40,14 @@ def assemble_vector(L: Any, b: Any, a: Any | None = None, bcs: list | None = Non
 
 #: BoomerAMG options set unless the user's PETSc options name them: HMIS coarsening,
 #: extended+i interpolation, one level of aggressive coarsening (cheaper set-ups and
-#: V-cycles for the pressure's Laplacian; docs/BENCHMARKS.md, "The pressure solves' AMG")
+#: V-cycles for the pressure's Laplacian) and the smoother's sweeps in the natural order,
+#: not C points then F points (a fifth cheaper V-cycles at the same iteration counts;
+#: docs/BENCHMARKS.md, "The pressure solves' AMG")
 HYPRE_OPTIONS = {
     "pc_hypre_boomeramg_coarsen_type": "HMIS",
     "pc_hypre_boomeramg_interp_type": "ext+i",
     "pc_hypre_boomeramg_agg_nl": "1",
+    "pc_hypre_boomeramg_no_CF": "true",
 }
 
 

@@ -3,7 +3,8 @@ options winning over them.
 
 The options must reach hypre: aggressive coarsening changes the iteration count of a CG
 solve of a Poisson problem, so the counts with pfem2x's choice and with the user's
-``agg_nl 0`` differ, and the latter equals that of PETSc's defaults.
+``agg_nl 0`` differ, and the latter equals that of PETSc's defaults. The smoother's order
+(``no_CF``) changes the solve's final residual.
 """
 
 import pytest
@@ -49,10 +50,15 @@ def poisson(n: int = 64):
 
 
 def iterations(A, b) -> int:
+    return solve(A, b)[0]
+
+
+def solve(A, b) -> tuple[int, float]:
+    """Iterations and final residual norm of a hypre-preconditioned CG solve."""
     solver = fem.LinearSolver(A, "cg", "hypre", rtol=1e-10)
     x = b.duplicate()
     try:
-        return solver.solve(b, x)
+        return solver.solve(b, x), solver.ksp.getResidualNorm()
     finally:
         solver.destroy()
         x.destroy()
@@ -87,11 +93,23 @@ def test_pfem2x_options_are_set_and_reach_hypre(clean_options):
 
 
 @needs_hypre
+def test_smoother_order_reaches_hypre(clean_options):
+    """``no_CF``: the same problem's solve ends elsewhere with C/F-ordered sweeps."""
+    A, b = poisson()
+    natural = solve(A, b)
+    assert clean_options.getString("pc_hypre_boomeramg_no_CF") == "true"
+    clean_options["pc_hypre_boomeramg_no_CF"] = "false"
+    cf_ordered = solve(A, b)
+    assert natural != cf_ordered, (natural, cf_ordered)
+
+
+@needs_hypre
 def test_user_options_win(clean_options):
     A, b = poisson()
     clean_options["pc_hypre_boomeramg_coarsen_type"] = "Falgout"
     clean_options["pc_hypre_boomeramg_interp_type"] = "classical"
     clean_options["pc_hypre_boomeramg_agg_nl"] = "0"
+    clean_options["pc_hypre_boomeramg_no_CF"] = "false"
     users = iterations(A, b)
     assert clean_options.getString("pc_hypre_boomeramg_coarsen_type") == "Falgout"
     # PETSc's own defaults are the user's choice here: the same iterations
