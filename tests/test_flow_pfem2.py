@@ -366,6 +366,30 @@ def test_predictor_particles_thin_the_first_pass_only(monkeypatch):
     assert 0.0 < du < 0.02 * u, (du, u)  # measured: 0.005 u (1 and 2 ranks)
 
 
+def test_only_the_second_pass_increments_the_particles(monkeypatch):
+    """Two passes: the particles' velocity increment (step 4) once per step, in the second.
+
+    The first pass's particles are dropped when the second starts again from those of
+    the start of the step, so their increment would be work for nothing.
+    """
+    from pfem2x import particles as P
+
+    counts: list[int] = []
+    add = P.add_increment
+
+    def spy(cloud, *args, **kw):
+        counts.append(cloud.global_count())
+        return add(cloud, *args, **kw)
+
+    monkeypatch.setattr(P, "add_increment", spy)
+    s, _ = solver_for("flow.predictor_particles=0.5")
+    assert s.extra_pass
+    for k in range(2):
+        n0 = s.cloud().global_count()
+        s.step(0.5 * k, 0.5)
+        assert counts[k:] == [n0], (counts, n0)  # every particle, once
+
+
 @pytest.mark.mpi
 def test_predictor_tolerances_loosen_the_first_pass_only(monkeypatch):
     """``flow.predictor_rtol`` / ``predictor_divergence_rtol``: the first pass's solves only.

@@ -4,7 +4,8 @@ A mixin of :class:`~pfem2x.physics.flow.pfem2.LagrangianFlow` (its attributes:
 ``cloud_``, ``u``, ``p``, ``force``, ``_u_old``, ``dt_last``, ``step_count``,
 ``_pass``, ``_move``).
 
-Steps 1–4 run twice from the start-of-step particles. The second pass solves the
+Steps 1–3 run twice from the start-of-step particles; step 4, the particles' increment, in
+the second pass only (the first pass's particles are dropped). The second pass solves the
 :math:`\theta = 1/2` form of eq. 2.10 with the first pass's end-of-step mesh
 velocity :math:`u^{(1)}` and source :math:`a^{(1)}` (the pressure
 :math:`p^n + \delta p^{(1)}`) standing in for :math:`u^{n+1}`, :math:`a^{n+1}`:
@@ -143,7 +144,7 @@ class TwoPasses:
         return self.path_source and not self.gravity_only and not self.light_gravity_only
 
     def _two_passes(self, dt: float) -> None:
-        """Steps 1–4 twice from the start-of-step particles (see the module docstring)."""
+        """Steps 1–3 twice from the start-of-step particles, then 4 (see the module docstring)."""
         c = self.cloud_
         blends = self._blends()
         # the second pass's viscous predictor of second order (flow.viscous_step)

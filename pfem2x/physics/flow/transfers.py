@@ -110,7 +110,13 @@ class ParticleTransfers:
         self.cloud_.field("dist")[:] += b
 
     def _increment_particles(self) -> None:
-        """Step 4: ``u_p += (u^{n+1} - u_hat)(x_p)``, the PIC blend, the affine part."""
+        """Step 4: ``u_p += (u^{n+1} - u_hat)(x_p)``, the PIC blend, the affine part.
+
+        Nothing in the first of two passes: the second starts again from the particles
+        of the start of the step (:mod:`.passes`), so the first pass's are dropped.
+        """
+        if self._first_pass:
+            return
         c = self.cloud_
         self.du.x.array[:] = self.u.x.array - self.u_hat.x.array
         P.add_increment(c, "u", self.du)
