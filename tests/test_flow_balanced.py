@@ -83,15 +83,21 @@ def test_closest_points_on_segments():
     assert np.allclose(closest_points(pts, segs), want, atol=1e-15)
 
 
-def test_closest_points_as_all_pairs():
+@pytest.mark.parametrize("shape", ["wavy", "flat", "upright"])
+def test_closest_points_as_all_pairs(shape):
     """The bucketed search: the closest point of all pairs, to the last bit, ties included.
 
-    A wavy polyline of 2000 segments (shared end points: two equidistant segments,
-    the lower index wins) and points near it, on it and far from it.
+    A polyline of 2000 segments (shared end points: two equidistant segments, the lower
+    index wins), wavy or straight (a flat or upright line: a bounding box of no area),
+    and points near it, on it and far from it.
     """
     rng = np.random.default_rng(11)
     t = np.linspace(-0.5, 0.5, 2001)
-    line = np.c_[t, 0.1 * np.cos(2 * np.pi * t) + 0.02 * np.sin(40 * t)]
+    line = {
+        "wavy": np.c_[t, 0.1 * np.cos(2 * np.pi * t) + 0.02 * np.sin(40 * t)],
+        "flat": np.c_[t, np.full_like(t, 0.0137)],
+        "upright": np.c_[np.full_like(t, 0.2), t],
+    }[shape]
     segs = np.stack([line[:-1], line[1:]], axis=1)
     pts = np.concatenate(
         [rng.uniform([-0.6, -0.4], [0.6, 0.4], (3000, 2)), line[::5], line[::7] + [0.0, 1e-3]]

@@ -154,10 +154,16 @@ def _nearest_segment(points, segs, cap, projected):  # pragma: no cover - compil
             hix = max(hix, segs[j, k, 0])
             loy = min(loy, segs[j, k, 1])
             hiy = max(hiy, segs[j, k, 1])
-    # bucket side: about one segment per bucket of the box, at least cap / 16 (a point
-    # within cap scans at most 33 x 33 buckets), at most 4096 buckets a side
+    # bucket side: about one segment per bucket of the box, and not below the segments'
+    # mean length (segments along a straight line have a box of no area: buckets much
+    # shorter than a segment made a point away from the line scan hundreds of rings),
+    # at least cap / 16 (a point within cap scans at most 33 x 33 buckets), at most
+    # 4096 buckets a side
     span = max(hix - lox, hiy - loy)
-    b = np.sqrt((hix - lox) * (hiy - loy) / m)
+    length = 0.0
+    for s in range(m):
+        length += np.sqrt(ab2[s])
+    b = max(np.sqrt((hix - lox) * (hiy - loy) / m), length / m)
     if cap < np.inf:
         b = max(b, cap / 16.0)
     b = max(b, span / 4096.0)
