@@ -177,3 +177,44 @@ def test_replace_sorted_is_remove_append_sort():
     for name in ("T", "v"):
         assert np.array_equal(a.field(name), b.field(name))
     assert b.check()
+
+
+def test_restore_is_remove_all_and_append_of_the_saved():
+    """``restore(save())`` gives back the saved particles as remove-all and append would.
+
+    Between the two the cloud is changed every way a pass changes it (moved, thinned,
+    grown past its capacity, a hidden work field added); the saved arrays become its
+    storage when the capacity is unchanged, and a second save re-uses the arrays the
+    restore replaced (no new storage).
+    """
+    d = build_mesh(MPI.COMM_SELF, "rectangle", [[0.0, 0.0], [1.0, 1.0]], [6, 6])
+    for grow in (False, True):
+        cl = Cloud(d, {"T": (), "v": (2,)})
+        seed_cells(cl, 5, seed=4)
+        cl["T"] = np.arange(cl.n, dtype=float)
+        cl["v"] = cl.x[:, ::-1]
+        ref = cl.extract()
+        saved = cl.save()
+        assert set(saved["arrays"]) == {"__x", "__c", "T", "v"}
+        cl.x[:] = 0.5
+        cl.field("T")[:] = -1.0
+        cl.remove(np.arange(cl.n) % 3 == 0)
+        cl.add_field("_work", (2,), value=7.0)
+        if grow:
+            more = Cloud(d, {"T": (), "v": (2,)})
+            seed_cells(more, 12, seed=5)
+            cl.append(more.x, more.cells, {"T": more["T"]})
+        cap = cl.capacity
+        kept = saved["arrays"]["__x"]
+        replaced = {id(cl._x), id(cl._c), id(cl._f["T"]), id(cl._f["v"])}
+        cl.restore(saved)
+        assert cl.n == len(ref["__x"]) and cl.capacity == cap
+        assert np.array_equal(cl.x, ref["__x"]) and np.array_equal(cl.cells, ref["__c"])
+        for name in ("T", "v"):
+            assert np.array_equal(cl.field2d(name), ref[name])
+        assert not cl.field("_work").any()  # a hidden field: zero, as append leaves it
+        assert (cl._x is kept) != grow  # swapped in, or copied into a grown storage
+        assert cl.check()
+        again = cl.save()
+        if not grow:  # the next save copies into the arrays the restore replaced
+            assert {id(a) for a in again["arrays"].values()} == replaced

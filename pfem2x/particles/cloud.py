@@ -324,6 +324,55 @@ class Cloud:
             out[name] = take(a)
         return out
 
+    def save(self) -> dict[str, Any]:
+        """A copy of the particles (positions, cells, visible fields) for :meth:`restore`.
+
+        The copies are storage arrays of the current capacity, taken from the spare
+        arrays where there are any (only the particles' rows are copied): a restore
+        swaps them in without copying them back, and the arrays it replaces become the
+        spares of the next save. Hidden (``_``-prefixed) work fields are not saved.
+        """
+        n = self._n
+        arrays: dict[str, np.ndarray] = {}
+        for name, a in (("__x", self._x), ("__c", self._c), *self._f.items()):
+            if name.startswith("_") and name not in ("__x", "__c"):
+                continue
+            b = self._spare_array(a.shape, a.dtype)
+            b[:n] = a[:n]
+            arrays[name] = b
+        return {"n": n, "arrays": arrays}
+
+    def restore(self, saved: Mapping[str, Any]) -> None:
+        """Put back the particles of :meth:`save`; the cloud's own are dropped.
+
+        The result is that of :meth:`remove` of every particle and :meth:`append` of the
+        saved positions, cells and fields (a field the save does not hold, a hidden one
+        among them, is zero). A saved array of the current capacity becomes the storage
+        (the one it replaces a spare); one of another capacity (the cloud grew since)
+        is copied. The ``saved`` arrays belong to the cloud afterwards.
+        """
+        n = int(saved["n"])
+        arrays = saved["arrays"]
+        self.reserve(n)
+
+        def put(old: np.ndarray, new: np.ndarray) -> np.ndarray:
+            if new.shape == old.shape and new.dtype == old.dtype:
+                self._keep_spare(old)
+                return new
+            old[:n] = new[:n]
+            return old
+
+        self._x = put(self._x, arrays["__x"])
+        self._c = put(self._c, arrays["__c"])
+        for name, a in self._f.items():
+            b = arrays.get(name)
+            if b is None:
+                a[:n] = 0.0
+            else:
+                self._f[name] = put(a, b)
+        self._n = n
+        self._offsets = None
+
     # ------------------------------------------------------------------ order
     def sort_by_cell(self) -> np.ndarray:
         """Reorder every array by cell (stable counting sort); returns the cell offsets.

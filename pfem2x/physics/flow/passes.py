@@ -150,7 +150,7 @@ class TwoPasses:
         # the second pass's viscous predictor of second order (flow.viscous_step)
         sdirk = blends and self.viscous_sdirk and self.viscous and self.capillary is None
         with self.timer("particles"):
-            saved = c.extract()
+            saved = c.save()
             share = float(self.scene.flow.predictor_particles)
             if share < 1.0:
                 c.remove(_predictor_drop(c.cells, c.pmesh.n_cells, share))
@@ -177,9 +177,7 @@ class TwoPasses:
         self._viscous_l_stable = sdirk
         # second pass from the start-of-step state, theta = 1/2 in eq. 2.10
         with self.timer("particles"):
-            c.remove(np.ones(c.n, dtype=bool))
-            names = c.field_names
-            c.append(saved["__x"], saved["__c"], {k: saved[k] for k in names})
+            c.restore(saved)
             self.p.x.array[:] = p_old
         try:
             if blends:
