@@ -91,3 +91,18 @@ def test_no_overwrite_without_flag_then_overwrite(small_run):
         "run", "gaussian-hill", "--variant", "small", "--out", str(out), "--quiet", "--overwrite"
     )
     assert res.returncode == 0, res.stderr
+
+
+def test_singleton_mpi_defaults_only_without_a_launcher():
+    """A serial run gets Open MPI's quick start; a launched one, or a user's choice, is kept."""
+    from pfem2x.cli import SINGLETON_MPI, singleton_mpi_defaults
+
+    env = {"HOME": "/home/u"}
+    assert singleton_mpi_defaults(env) == SINGLETON_MPI
+    assert env == {"HOME": "/home/u", **SINGLETON_MPI}
+    launched = {"OMPI_COMM_WORLD_SIZE": "2"}
+    assert singleton_mpi_defaults(launched) == {}
+    assert launched == {"OMPI_COMM_WORLD_SIZE": "2"}
+    mine = {"OMPI_MCA_pml": "ucx"}
+    assert singleton_mpi_defaults(mine) == {"OMPI_MCA_ess_singleton_isolated": "1"}
+    assert mine["OMPI_MCA_pml"] == "ucx"
