@@ -151,14 +151,21 @@ def test_mesh_values_bound_collinear_samples(comm, deviation):
     assert 0.0 <= lo and hi <= 1.0, (lo, hi)
 
 
-def test_replace_sorted_is_remove_append_sort():
-    """One permutation gives the storage of remove, append and sort_by_cell in turn."""
+def _twin_clouds():
+    """The mesh (6 x 6) and two equal clouds of 5 particles a cell with fields ``T``, ``v``."""
     d = build_mesh(MPI.COMM_SELF, "rectangle", [[0.0, 0.0], [1.0, 1.0]], [6, 6])
     clouds = [Cloud(d, {"T": (), "v": (2,)}) for _ in range(2)]
     for cl in clouds:
         seed_cells(cl, 5, seed=4)
         cl["T"] = np.arange(cl.n, dtype=float)
         cl["v"] = cl.x[:, ::-1]
+    return d, clouds
+
+
+def test_replace_sorted_is_remove_append_sort():
+    """One permutation gives the storage of remove, append and sort_by_cell in turn."""
+    d, clouds = _twin_clouds()
+    for cl in clouds:
         cl.x[:] = cl.x[::-1].copy()  # unsorted storage (cells follow)
         cl.cells[:] = cl.cells[::-1].copy()
     n = clouds[0].n
@@ -218,3 +225,29 @@ def test_restore_is_remove_all_and_append_of_the_saved():
         again = cl.save()
         if not grow:  # the next save copies into the arrays the restore replaced
             assert {id(a) for a in again["arrays"].values()} == replaced
+
+
+def test_save_with_drop_is_save_then_remove():
+    """``save(drop)``: the cloud as ``remove(drop)`` leaves it; the restore gives back all."""
+    _, clouds = _twin_clouds()
+    for cl in clouds:
+        cl.add_field("_work", (), value=3.0)
+    a, b = clouds
+    drop = np.arange(a.n) % 3 == 1
+    ref = a.extract()
+    saved_a = a.save()
+    a.remove(drop)
+    held = b._x
+    saved_b = b.save(drop)
+    assert saved_b["arrays"]["__x"] is held  # the storage itself, not a copy
+    assert b.n == a.n and np.array_equal(b.x, a.x) and np.array_equal(b.cells, a.cells)
+    for name in ("T", "v", "_work"):
+        assert np.array_equal(b.field2d(name), a.field2d(name))
+    a.restore(saved_a)
+    b.restore(saved_b)
+    for cl in (a, b):
+        assert np.array_equal(cl.x, ref["__x"]) and np.array_equal(cl.cells, ref["__c"])
+        for name in ("T", "v"):
+            assert np.array_equal(cl.field2d(name), ref[name])
+        assert cl.check()
+    assert b.save(np.zeros(b.n, dtype=bool))["arrays"]["__x"] is not b._x  # nothing dropped

@@ -228,26 +228,30 @@ class Cloud:
         self._take(keep)
         return int(mask.sum())
 
-    def _take(self, idx: np.ndarray) -> None:
+    def _take(self, idx: np.ndarray, spare: bool = True) -> None:
         """Keep particles ``idx`` (int64, each index once), in that order.
 
         Each array is gathered into a spare array of its shape, which then takes
-        its place (the old one becomes the spare).
+        its place (the old one becomes the spare; ``spare = False``: it is left to
+        the caller).
         """
         m = len(idx)
         idx = np.ascontiguousarray(idx, dtype=np.int64)
         x = self._spare_array(self._x.shape, self._x.dtype)
         K.gather_rows(self._x, idx, x)
-        self._keep_spare(self._x)
+        if spare:
+            self._keep_spare(self._x)
         self._x = x
         c = self._spare_array(self._c.shape, self._c.dtype)
         np.take(self._c, idx, out=c[:m])
-        self._keep_spare(self._c)
+        if spare:
+            self._keep_spare(self._c)
         self._c = c
         for name, a in self._f.items():
             b = self._spare_array(a.shape, a.dtype)
             K.gather_rows(a, idx, b)
-            self._keep_spare(a)
+            if spare:
+                self._keep_spare(a)
             self._f[name] = b
         self._n = m
         self._offsets = None
@@ -324,15 +328,25 @@ class Cloud:
             out[name] = take(a)
         return out
 
-    def save(self) -> dict[str, Any]:
+    def save(self, drop: np.ndarray | None = None) -> dict[str, Any]:
         """A copy of the particles (positions, cells, visible fields) for :meth:`restore`.
 
         The copies are storage arrays of the current capacity, taken from the spare
         arrays where there are any (only the particles' rows are copied): a restore
         swaps them in without copying them back, and the arrays it replaces become the
         spares of the next save. Hidden (``_``-prefixed) work fields are not saved.
+
+        ``drop`` (a boolean mask, some of it true): afterwards the cloud holds the
+        other particles only, as :meth:`remove` leaves it; the saved arrays are then
+        the storage itself, and the kept particles are gathered into spare arrays (one
+        gather, no copy).
         """
         n = self._n
+        if drop is not None and np.any(drop):
+            names = ["__x", "__c", *self.field_names]
+            held = {"__x": self._x, "__c": self._c, **self._f}
+            self._take(np.flatnonzero(~np.asarray(drop, dtype=bool)), spare=False)
+            return {"n": n, "arrays": {k: held[k] for k in names}}
         arrays: dict[str, np.ndarray] = {}
         for name, a in (("__x", self._x), ("__c", self._c), *self._f.items()):
             if name.startswith("_") and name not in ("__x", "__c"):

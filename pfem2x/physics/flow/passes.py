@@ -150,10 +150,9 @@ class TwoPasses:
         # the second pass's viscous predictor of second order (flow.viscous_step)
         sdirk = blends and self.viscous_sdirk and self.viscous and self.capillary is None
         with self.timer("particles"):
-            saved = c.save()
             share = float(self.scene.flow.predictor_particles)
-            if share < 1.0:
-                c.remove(_predictor_drop(c.cells, c.pmesh.n_cells, share))
+            drop = _predictor_drop(c.cells, c.pmesh.n_cells, share) if share < 1.0 else None
+            saved = c.save(drop)  # (the first pass's share stays in the cloud)
             guess = self._end_estimate(dt) if blends else None
             self._u_old.x.array[:] = self.u.x.array
             p_old = self.p.x.array.copy()
