@@ -131,15 +131,40 @@ class CellwiseForm:
         self._S = PETSc.Mat().createAIJWithArrays((len(unique), n), self._csr, comm=PETSc.COMM_SELF)
         self._k = PETSc.Vec().createSeq(n, comm=PETSc.COMM_SELF)
         self._values = PETSc.Vec().createSeq(len(unique), comm=PETSc.COMM_SELF)
+        #: one process: the matrix over the value array :attr:`_own_values` (see matrix)
+        self._own: Any = None
+        self._own_values: Any = None
+
+    def _k_from(self, k: np.ndarray) -> Any:
+        self._k.array[:] = k
+        return self._k
 
     def _products(self, k: np.ndarray) -> np.ndarray:
-        self._k.array[:] = k
-        self._S.mult(self._k, self._values)
+        self._S.mult(self._k_from(k), self._values)
         return self._values.array_r
 
     def matrix(self, k: np.ndarray, A: Any) -> Any:
-        """``A = sum_c k_c E_c`` into ``A``, DOLFINx's matrix of the form (collective)."""
+        """``sum_c k_c E_c`` into ``A``, DOLFINx's matrix of the form, or its own (collective).
+
+        Returns the matrix to use from now on. On one process that is, from the first
+        call on, a matrix of this object's own (the same rows, columns and entries as
+        DOLFINx's) over the value array that the product writes into: a re-assembly
+        is the product alone, without an insertion (the matrix's state is increased,
+        so that a solver using it sets its preconditioner up again). Under MPI the
+        values go into ``A`` (ghost rows to their owners) and ``A`` is returned.
+        """
         fem.COUNTERS["matrix_assemblies"] += 1
+        if A is not None and A is self._own:
+            self._S.mult(self._k_from(k), self._own_values)
+            A.stateIncrease()
+            return A
+        if A.getComm().getSize() == 1 and self._own is None:
+            values = np.zeros(len(self.indices), dtype=PETSc.ScalarType)
+            self._own = PETSc.Mat().createAIJWithArrays(
+                A.getSizes(), (self.indptr, self.indices, values), comm=PETSc.COMM_SELF
+            )
+            self._own_values = PETSc.Vec().createWithArray(values, comm=PETSc.COMM_SELF)
+            return self.matrix(k, self._own)
         values = self._products(k)
         A.zeroEntries()
         A.setValuesLocalCSR(self.indptr, self.indices, values, addv=PETSc.InsertMode.ADD_VALUES)

@@ -133,3 +133,50 @@ class _NoTimer:
 
     def __exit__(self, *exc):
         return False
+
+
+@pytest.mark.mpi
+def test_a_reassembly_reaches_the_solver_that_uses_the_matrix():
+    """A re-assembly changes what the next solve of a kept solver sees.
+
+    On one process the form keeps a matrix over its own value array and returns it
+    from the first call on; a re-assembly writes only that array, and must still make
+    a solver set its preconditioner up again: with an exact one (LU) the solution
+    halves when the coefficient doubles. On two ranks the values go into the given
+    matrix, returned as it is.
+    """
+    from pfem2x.compat import PETSc
+
+    mesh = _domain(2).mesh
+    rho, owned = _density(mesh)
+    Q = compat.function_space(mesh, 1)
+    q, r = ufl.TrialFunction(Q), ufl.TestFunction(Q)
+    t = geometry_table(mesh)
+    qd, nq = compat.dofmap_array(Q), cellwise.local_size(Q)
+    k = 1.0 / rho.x.array[owned]
+    # the Laplacian's element matrices plus a lumped mass: a regular operator
+    E, rows, cols = cellwise.p1_laplacian(t, qd)
+    E = E + (t.volume[: len(E)] / 3.0)[:, None, None] * np.eye(3)
+    form = cellwise.CellwiseForm(E, rows, cols, n_rows=nq, n_cols=nq)
+    A0 = compat.assemble_matrix(compat.form(ufl.dot(ufl.grad(q), ufl.grad(r)) * ufl.dx))
+    A = form.matrix(k, A0)
+    assert (A is A0) == (mesh.comm.size > 1)
+    ksp = PETSc.KSP().create(mesh.comm)
+    ksp.setOperators(A)
+    if mesh.comm.size == 1:
+        ksp.setType("preonly")
+        ksp.getPC().setType("lu")
+    else:
+        ksp.setType("cg")
+        ksp.getPC().setType("jacobi")
+        ksp.setTolerances(rtol=1e-12)
+    b = A.createVecLeft()
+    b.set(1.0)
+    x1, x2 = A.createVecRight(), A.createVecRight()
+    ksp.solve(b, x1)
+    assert form.matrix(2.0 * k, A) is A
+    ksp.setOperators(A)
+    ksp.solve(b, x2)
+    err = mesh.comm.allreduce(float(np.max(np.abs(2.0 * x2.array - x1.array))), op=MPI.MAX)
+    ref = mesh.comm.allreduce(float(np.max(np.abs(x1.array))), op=MPI.MAX)
+    assert ref > 0.0 and err <= 1e-8 * ref
