@@ -422,7 +422,9 @@ def png_snapshot(
     if gdim == 1:
         _png_1d(path, coords, vals, title)
     elif gdim == 2 or not pyvista_usable():
-        _png_matplotlib(path, coords, vals, title, clim, contour, label, segs)
+        from pfem2x.picture import png_2d  # noqa: PLC0415
+
+        png_2d(path, coords, vals, title, clim, contour, label, segs)
     else:
         _png_pyvista(path, coords, vals, title, clim, contour)
 
@@ -582,109 +584,3 @@ def _png_pyvista(
             pass
     pl.screenshot(str(path))
     pl.close()
-
-
-#: The last 2D figure (rank 0), kept for the next snapshot of the same mesh.
-_CANVAS: list[_Canvas] = []
-
-
-class _Canvas:
-    """A 2D snapshot figure of one mesh: the field, its colour bar and the interface.
-
-    Snapshots of a run share the mesh, so the figure is built once (the triangulation,
-    axes, ticks and colour bar) and each snapshot only sets the values, the range, the
-    interface and the texts before it is saved: about a third of the time of a new figure
-    (docs/BENCHMARKS.md, "PNG snapshots on one figure"). The axes sit at fixed places in
-    inches (no layout engine measuring every tick label at each save): the plot area in
-    the domain's aspect ratio, longest side 6.5 inches, with room for the tick labels,
-    the title and the colour bar's labels; the figure at least 5 inches wide for the
-    title.
-    """
-
-    def __init__(self, coords: np.ndarray) -> None:
-        from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: PLC0415
-        from matplotlib.collections import LineCollection, TriMesh  # noqa: PLC0415
-        from matplotlib.figure import Figure  # noqa: PLC0415
-        from matplotlib.tri import Triangulation  # noqa: PLC0415
-
-        self.coords = coords.copy()
-        nc, nv, gdim = coords.shape
-        pts = coords.reshape(-1, gdim)
-        tri = Triangulation(pts[:, 0], pts[:, 1], np.arange(nc * nv).reshape(nc, nv)[:, :3])
-        lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
-        aspect = float(np.clip((hi[1] - lo[1]) / max(hi[0] - lo[0], 1e-30), 0.2, 5.0))
-        w, h = (6.5, 6.5 * aspect) if aspect <= 1 else (6.5 / aspect, 6.5)
-        # inches: 0.75 left of the plot, 0.2 to the bar, the bar 0.15, 1.1 for its labels
-        width = w + 2.2
-        fw, fh = max(width, 5.0), h + 0.9
-        x0 = 0.5 * (fw - width) + 0.75
-        self.fig = Figure(figsize=(fw, fh))
-        FigureCanvasAgg(self.fig)
-        ax = self.fig.add_axes((x0 / fw, 0.55 / fh, w / fw, h / fh))
-        cax = self.fig.add_axes(
-            ((x0 + w + 0.2) / fw, 0.55 / fh + 0.1 * h / fh, 0.15 / fw, 0.8 * h / fh)
-        )
-        # ax.tripcolor(tri, v, shading="gouraud", ...) without the data limits of every
-        # triangle's path (most of the plot's time on a large mesh): the limits are set below
-        self.field = TriMesh(tri, cmap="viridis", edgecolors="none", antialiaseds=False)
-        self.field.set_linewidths((0.25,))
-        ax.grid(False)
-        ax.add_collection(self.field, autolim=False)
-        self.lines = LineCollection([], colors="#ff3030", linewidths=1.2)
-        ax.add_collection(self.lines, autolim=False)
-        self.bar = self.fig.colorbar(self.field, cax=cax)
-        ax.set_aspect("equal")
-        ax.set_xlim(lo[0], hi[0])
-        ax.set_ylim(lo[1], hi[1])
-        ax.set_xlabel("x")
-        ax.set_ylabel("y")
-        self.ax, self.tri = ax, tri
-
-    def save(
-        self,
-        path: Any,
-        vals: np.ndarray,
-        title: str,
-        clim: Any,
-        contour: float | None,
-        label: str,
-        segments: np.ndarray | None,
-    ) -> None:
-        """Draw ``vals`` (per cell and vertex, as the coordinates) and save to ``path``."""
-        v = vals.ravel()
-        lo, hi = (float(v.min()), float(v.max())) if clim is None else clim
-        self.field.set_array(v)
-        self.field.set_clim(lo, hi)
-        self.lines.set_segments([] if segments is None else list(segments))
-        self.bar.set_label(f"{label or 'value'}   [{lo:.4g}, {hi:.4g}]")
-        self.ax.set_title(title, fontsize=10)
-        iso = None
-        if contour is not None:  # on its own triangulation: tricontour keeps state in it
-            t = self.tri
-            iso = self.ax.tricontour(t.x, t.y, t.triangles, v, levels=[contour], colors="w")
-        try:
-            self.fig.savefig(path, dpi=110)
-        finally:
-            if iso is not None:
-                iso.remove()
-
-
-def _png_matplotlib(
-    path: Any,
-    coords: np.ndarray,
-    vals: np.ndarray,
-    title: str,
-    clim: Any,
-    contour: float | None,
-    label: str = "",
-    segments: np.ndarray | None = None,
-) -> None:
-    """A filled 2D plot: the domain's aspect ratio, a colour bar, the interface on top.
-
-    The figure of the last call is reused when the mesh is the same (:class:`_Canvas`);
-    it draws on its own Agg canvas, so the user's pyplot backend is left as it is.
-    """
-    same = bool(_CANVAS) and _CANVAS[0].coords.shape == coords.shape
-    if not (same and np.array_equal(_CANVAS[0].coords, coords)):
-        _CANVAS[:] = [_Canvas(coords)]
-    _CANVAS[0].save(path, vals, title, clim, contour, label, segments)

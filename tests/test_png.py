@@ -5,6 +5,7 @@ import json
 import pytest
 
 from pfem2x import io as pio
+from pfem2x import picture
 from pfem2x.runner import Simulation
 from pfem2x.scene import load_scene, validate
 
@@ -100,18 +101,81 @@ def test_snapshots_of_one_mesh_reuse_the_figure_without_stale_artists(tmp_path, 
     u = dolfinx.fem.Function(compat.function_space(msh, 1))
     u.interpolate(lambda x: x[0] - 0.5)
     seg = np.array([[[0.2, 0.1], [0.6, 0.9]]])
-    monkeypatch.setattr(pio, "_CANVAS", [])
+    monkeypatch.setattr(picture, "_CANVAS", [])
     pio.png_snapshot(tmp_path / "a.png", u, "first", contour=0.0, label="T", segments=seg)
-    canvas = pio._CANVAS[0]
+    canvas = picture._CANVAS[0]
     u.x.array[:] *= 3.0
     pio.png_snapshot(tmp_path / "b.png", u, "second", clim=(0.0, 1.0), label="T")
-    assert pio._CANVAS[0] is canvas, "the figure was not reused"
-    pio._CANVAS.clear()
+    assert picture._CANVAS[0] is canvas, "the figure was not reused"
+    picture._CANVAS.clear()
     pio.png_snapshot(tmp_path / "c.png", u, "second", clim=(0.0, 1.0), label="T")
-    assert pio._CANVAS[0] is not canvas
+    assert picture._CANVAS[0] is not canvas
     assert (tmp_path / "b.png").read_bytes() == (tmp_path / "c.png").read_bytes()
     assert (tmp_path / "a.png").read_bytes() != (tmp_path / "b.png").read_bytes()
     other = dolfinx.mesh.create_unit_square(MPI.COMM_SELF, 4, 4)
     w = dolfinx.fem.Function(compat.function_space(other, 1))
     pio.png_snapshot(tmp_path / "d.png", w, "another mesh")
-    assert pio._CANVAS[0].coords.shape[0] == 32, "a new mesh needs a new figure"
+    assert picture._CANVAS[0].coords.shape[0] == 32, "a new mesh needs a new figure"
+
+
+def _triangles(nx, ny, lo=(0.0, 0.0), hi=(1.0, 1.0), jitter=0.3):
+    """A perturbed ``nx`` x ``ny`` triangulation of a box as ``(n, 3, 2)`` vertex coordinates."""
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    x, y = np.meshgrid(np.linspace(lo[0], hi[0], nx + 1), np.linspace(lo[1], hi[1], ny + 1))
+    inner = (x > lo[0]) & (x < hi[0]) & (y > lo[1]) & (y < hi[1])
+    x = x + inner * rng.uniform(-jitter, jitter, x.shape) * (hi[0] - lo[0]) / nx
+    y = y + inner * rng.uniform(-jitter, jitter, y.shape) * (hi[1] - lo[1]) / ny
+    p = np.stack([x.ravel(), y.ravel()], 1)
+    k = np.arange((nx + 1) * (ny + 1)).reshape(ny + 1, nx + 1)
+    a, b, c, d = k[:-1, :-1].ravel(), k[:-1, 1:].ravel(), k[1:, :-1].ravel(), k[1:, 1:].ravel()
+    return p[np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)])]
+
+
+@pytest.mark.parametrize("cells, shape", [((3, 5), (40, 30)), ((60, 40), (17, 23))])
+def test_raster_is_the_p1_field_at_every_pixel_centre(cells, shape, monkeypatch):
+    """A linear field is exact at each pixel centre; a box's raster is covered once.
+
+    Coarse triangles (many pixels each) and fine ones (several per pixel), the
+    candidates in one chunk and in chunks of 64.
+    """
+    import numpy as np
+
+    from pfem2x import picture
+
+    coords = _triangles(*cells, lo=(-1.0, 0.5), hi=(2.0, 2.5))
+    lo, hi = np.array([-1.0, 0.5]), np.array([2.0, 2.5])
+    rows, cols = shape
+    j, i = np.divmod(np.arange(rows * cols), cols)
+    cx = lo[0] + (i + 0.5) * (hi[0] - lo[0]) / cols
+    cy = lo[1] + (j + 0.5) * (hi[1] - lo[1]) / rows
+    first = None
+    for chunk in (1 << 22, 64):
+        monkeypatch.setattr(picture, "_CHUNK", chunk)
+        pix, cell, w = picture.raster_weights(coords, lo, hi, shape)
+        assert np.array_equal(pix, np.arange(rows * cols)), "every pixel once"
+        assert np.all(w >= -1e-9) and np.allclose(w.sum(1), 1.0)
+        assert np.allclose(np.einsum("ij,ijk->ik", w, coords[cell]), np.stack([cx, cy], 1))
+        vals = 3.0 * coords[..., 0] - 2.0 * coords[..., 1]
+        got = np.einsum("ij,ij->i", w, vals[cell])
+        assert np.allclose(got, 3.0 * cx - 2.0 * cy, atol=1e-12)
+        if first is None:
+            first = (cell, w)
+        else:
+            assert np.array_equal(first[0], cell) and np.allclose(first[1], w)
+
+
+def test_raster_leaves_pixels_outside_the_mesh_blank():
+    """An L-shaped mesh: the pixels of the missing quarter are not covered, all others are."""
+    import numpy as np
+
+    from pfem2x import picture
+
+    box = _triangles(8, 8, hi=(2.0, 2.0), jitter=0.0)
+    centre = box.mean(axis=1)
+    L = box[~((centre[:, 0] > 1.0) & (centre[:, 1] > 1.0))]
+    pix, _cell, _w = picture.raster_weights(L, np.zeros(2), np.full(2, 2.0), (20, 20))
+    j, i = np.divmod(pix, 20)
+    assert len(pix) == 300
+    assert not np.any((i >= 10) & (j >= 10))
