@@ -9,7 +9,9 @@ owned cells' coefficients to the rows of the assembled operator, local rows and 
 rows both), and re-assembles by :math:`S k` and one insertion into the PETSc matrix
 that DOLFINx created for the same form (its layout and local-to-global maps; the
 ghost rows' values go to their owners in PETSc's assembly, as in DOLFINx's own
-assembler). The same for a linear form into a ghosted vector.
+assembler). On one process the operator is a matrix over the value array that
+:math:`S k` writes, and a re-assembly is that product alone. The same for a linear
+form into a ghosted vector.
 
 The element tensors of the operators the flow frames re-assemble every pass
 (:func:`p1_laplacian`, :func:`p1_gradient`, :func:`p1_lumped_mass`) are exact for
