@@ -156,17 +156,17 @@ class CellwiseForm:
         values go into ``A`` (ghost rows to their owners) and ``A`` is returned.
         """
         fem.COUNTERS["matrix_assemblies"] += 1
-        if A is not None and A is self._own:
-            self._S.mult(self._k_from(k), self._own_values)
-            A.stateIncrease()
-            return A
-        if A.getComm().getSize() == 1 and self._own is None:
+        if self._own is None and A.getComm().getSize() == 1:
             values = np.zeros(len(self.indices), dtype=PETSc.ScalarType)
             self._own = PETSc.Mat().createAIJWithArrays(
                 A.getSizes(), (self.indptr, self.indices, values), comm=PETSc.COMM_SELF
             )
             self._own_values = PETSc.Vec().createWithArray(values, comm=PETSc.COMM_SELF)
-            return self.matrix(k, self._own)
+            A = self._own
+        if A is self._own:
+            self._S.mult(self._k_from(k), self._own_values)
+            A.stateIncrease()
+            return A
         values = self._products(k)
         A.zeroEntries()
         A.setValuesLocalCSR(self.indptr, self.indices, values, addv=PETSc.InsertMode.ADD_VALUES)
