@@ -9,8 +9,9 @@ owned cells' coefficients to the rows of the assembled operator, local rows and 
 rows both), and re-assembles by :math:`S k` and one insertion into the PETSc matrix
 that DOLFINx created for the same form (its layout and local-to-global maps; the
 ghost rows' values go to their owners in PETSc's assembly, as in DOLFINx's own
-assembler). On one process the operator is a matrix over the value array that
-:math:`S k` writes, and a re-assembly is that product alone. The same for a linear
+assembler). On one process the form adopts DOLFINx's first assembly as a matrix of
+its own over the value array that :math:`S k` writes (:meth:`CellwiseForm.adopt`), and a
+re-assembly is that product alone. The same for a linear
 form into a ghosted vector.
 
 The element tensors of the operators the flow frames re-assemble every pass
@@ -133,7 +134,7 @@ class CellwiseForm:
         self._S = PETSc.Mat().createAIJWithArrays((len(unique), n), self._csr, comm=PETSc.COMM_SELF)
         self._k = PETSc.Vec().createSeq(n, comm=PETSc.COMM_SELF)
         self._values = PETSc.Vec().createSeq(len(unique), comm=PETSc.COMM_SELF)
-        #: one process: the matrix over the value array :attr:`_own_values` (see matrix)
+        #: one process: the matrix over the value array :attr:`_own_values` (see adopt)
         self._own: Any = None
         self._own_values: Any = None
 
@@ -145,24 +146,39 @@ class CellwiseForm:
         self._S.mult(self._k_from(k), self._values)
         return self._values.array_r
 
-    def matrix(self, k: np.ndarray, A: Any) -> Any:
-        """``sum_c k_c E_c`` into ``A``, DOLFINx's matrix of the form, or its own (collective).
+    def adopt(self, A: Any) -> Any:
+        """On one process, a matrix of this form's own with ``A``'s values; else ``A``.
 
-        Returns the matrix to use from now on. On one process that is, from the first
-        call on, a matrix of this object's own (the same rows, columns and entries as
-        DOLFINx's) over the value array that the product writes into: a re-assembly
-        is the product alone, without an insertion (the matrix's state is increased,
-        so that a solver using it sets its preconditioner up again). Under MPI the
-        values go into ``A`` (ghost rows to their owners) and ``A`` is returned.
+        ``A`` is DOLFINx's assembled matrix of the form. When it has this form's rows,
+        columns and entries (one process), the returned matrix holds a copy of its values
+        in the array that :meth:`matrix` then writes: a re-assembly is the product alone,
+        without an insertion. Adopt the matrix at its first assembly, so that a solver
+        sees one matrix object for the whole run (a preconditioner that re-uses its
+        set-up for a re-assembled matrix, as GAMG's interpolation, behaves as with
+        DOLFINx's). Under MPI, or for another structure, ``A`` itself is returned and
+        :meth:`matrix` inserts into it.
+        """
+        if A.getComm().getSize() > 1:
+            return A
+        indptr, indices, values = A.getValuesCSR()
+        if not (np.array_equal(indptr, self.indptr) and np.array_equal(indices, self.indices)):
+            return A
+        values = np.array(values, dtype=PETSc.ScalarType)
+        self._own = PETSc.Mat().createAIJWithArrays(
+            A.getSizes(), (self.indptr, self.indices, values), comm=PETSc.COMM_SELF
+        )
+        self._own_values = PETSc.Vec().createWithArray(values, comm=PETSc.COMM_SELF)
+        return self._own
+
+    def matrix(self, k: np.ndarray, A: Any) -> Any:
+        """``A = sum_c k_c E_c`` (collective); ``A``: DOLFINx's matrix or :meth:`adopt`'s.
+
+        Returns ``A``. Into the matrix of :meth:`adopt` the product writes the values
+        directly, and the matrix's state is increased, so that a solver using it sets
+        its preconditioner up again; into DOLFINx's the values are inserted (ghost
+        rows to their owners).
         """
         fem.COUNTERS["matrix_assemblies"] += 1
-        if self._own is None and A.getComm().getSize() == 1:
-            values = np.zeros(len(self.indices), dtype=PETSc.ScalarType)
-            self._own = PETSc.Mat().createAIJWithArrays(
-                A.getSizes(), (self.indptr, self.indices, values), comm=PETSc.COMM_SELF
-            )
-            self._own_values = PETSc.Vec().createWithArray(values, comm=PETSc.COMM_SELF)
-            A = self._own
         if A is self._own:
             self._S.mult(self._k_from(k), self._own_values)
             A.stateIncrease()

@@ -61,11 +61,14 @@ def test_cellwise_operators_equal_dolfinx_assembly(gdim):
     A = compat.assemble_matrix(a_lap)
     lap = cellwise.CellwiseForm(*cellwise.p1_laplacian(t, qd), n_rows=nq, n_cols=nq)
     results.append(_norm_diff(lap.matrix(k, A.duplicate()), A))
+    # adopted (one process: the form's own matrix) and re-assembled into it
+    results.append(_norm_diff(lap.matrix(k, lap.adopt(A.duplicate(copy=True))), A))
 
     a_grad = compat.form(ufl.dot(ufl.grad(q), w) / rho * ufl.dx)
     G = compat.assemble_matrix(a_grad)
     grad = cellwise.CellwiseForm(*cellwise.p1_gradient(t, vd, qd, gdim), n_rows=nv, n_cols=nq)
     results.append(_norm_diff(grad.matrix(k, G.duplicate()), G))
+    results.append(_norm_diff(grad.matrix(k, grad.adopt(G.duplicate(copy=True))), G))
 
     L_mass = compat.form(rho * ufl.dot(w, ufl.as_vector([1.0] * gdim)) * ufl.dx)
     b = compat.create_vector(L_mass)
@@ -139,11 +142,10 @@ class _NoTimer:
 def test_a_reassembly_reaches_the_solver_that_uses_the_matrix():
     """A re-assembly changes what the next solve of a kept solver sees.
 
-    On one process the form keeps a matrix over its own value array and returns it
-    from the first call on; a re-assembly writes only that array, and must still make
-    a solver set its preconditioner up again: with an exact one (LU) the solution
-    halves when the coefficient doubles. On two ranks the values go into the given
-    matrix, returned as it is.
+    On one process the form adopts DOLFINx's matrix as one over its own value array;
+    a re-assembly writes only that array, and must still make a solver set its
+    preconditioner up again: with an exact one (LU) the solution halves when the
+    coefficient doubles. On two ranks the values go into DOLFINx's matrix.
     """
     from pfem2x.compat import PETSc
 
@@ -159,8 +161,9 @@ def test_a_reassembly_reaches_the_solver_that_uses_the_matrix():
     E = E + (t.volume[: len(E)] / 3.0)[:, None, None] * np.eye(3)
     form = cellwise.CellwiseForm(E, rows, cols, n_rows=nq, n_cols=nq)
     A0 = compat.assemble_matrix(compat.form(ufl.dot(ufl.grad(q), ufl.grad(r)) * ufl.dx))
-    A = form.matrix(k, A0)
+    A = form.adopt(A0)
     assert (A is A0) == (mesh.comm.size > 1)
+    assert form.matrix(k, A) is A
     ksp = PETSc.KSP().create(mesh.comm)
     ksp.setOperators(A)
     if mesh.comm.size == 1:

@@ -231,6 +231,8 @@ class PressureProjection:
             self.A_p = self._cellwise["laplacian"].matrix(self._inverse_density(), self.A_p)
         else:
             self.A_p = fem.assemble_matrix(self.a_p, self.bcs_p, self.A_p)
+            if "laplacian" in self._cellwise:  # (one process: the form's own matrix)
+                self.A_p = self._cellwise["laplacian"].adopt(self.A_p)
         if not self.bcs_p:
             self.nullspace = compat.constant_nullspace(self.A_p)
         if self.p_solver is None:
@@ -362,6 +364,8 @@ class _DiscreteProjection:
             self.G = self._gradient.matrix(self._inverse_density(), self.G)
         else:
             self.G = fem.assemble_matrix(self.a_G, [], self.G)
+            if self._gradient is not None:
+                self.G = self._gradient.adopt(self.G)
         self.G.diagonalScale(L=self.minv)  # P M^-1 G
         if self.ksp is not None:
             return
