@@ -10,9 +10,9 @@ rows both), and re-assembles by :math:`S k` and one insertion into the PETSc mat
 that DOLFINx created for the same form (its layout and local-to-global maps; the
 ghost rows' values go to their owners in PETSc's assembly, as in DOLFINx's own
 assembler). On one process the form adopts DOLFINx's first assembly as a matrix of
-its own over the value array that :math:`S k` writes (:meth:`CellwiseForm.adopt`), and a
-re-assembly is that product alone. The same for a linear
-form into a ghosted vector.
+its own over the value array that :math:`S k` writes (:meth:`CellwiseForm.adopt`),
+and a re-assembly is that product alone. The same for a linear form into a ghosted
+vector.
 
 The element tensors of the operators the flow frames re-assemble every pass
 (:func:`p1_laplacian`, :func:`p1_gradient`, :func:`p1_lumped_mass`) are exact for

@@ -117,8 +117,7 @@ class Canvas:
         aspect = float(np.clip(span[1] / span[0], 0.2, 5.0))
         w, h = (6.5, 6.5 * aspect) if aspect <= 1 else (6.5 / aspect, 6.5)
         # inches: 0.75 left of the plot, 0.6 below, 0.2 to the bar, the bar 0.15, 1.1 for
-        # its labels;
-        # the plot's edges on whole pixels, so that the raster's pixels are the PNG's
+        # its labels; the plot's edges on whole pixels (the raster's pixels are the PNG's)
         w, h = _whole(w), _whole(h)
         width = w + 2.2
         fw, fh = _whole(max(width, 5.0)), _whole(h + 0.95)
