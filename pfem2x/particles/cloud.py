@@ -342,15 +342,12 @@ class Cloud:
         gather, no copy).
         """
         n = self._n
+        held = {"__x": self._x, "__c": self._c, **{k: self._f[k] for k in self.field_names}}
         if drop is not None and np.any(drop):
-            names = ["__x", "__c", *self.field_names]
-            held = {"__x": self._x, "__c": self._c, **self._f}
             self._take(np.flatnonzero(~np.asarray(drop, dtype=bool)), spare=False)
-            return {"n": n, "arrays": {k: held[k] for k in names}}
+            return {"n": n, "arrays": held}
         arrays: dict[str, np.ndarray] = {}
-        for name, a in (("__x", self._x), ("__c", self._c), *self._f.items()):
-            if name.startswith("_") and name not in ("__x", "__c"):
-                continue
+        for name, a in held.items():
             b = self._spare_array(a.shape, a.dtype)
             b[:n] = a[:n]
             arrays[name] = b

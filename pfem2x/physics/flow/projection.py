@@ -228,7 +228,7 @@ class PressureProjection:
     def assemble_operator(self) -> None:
         """(Re-)assemble the pressure operator (its density may have changed)."""
         if self.A_p is not None and "laplacian" in self._cellwise:
-            self.A_p = self._cellwise["laplacian"].matrix(self._inverse_density(), self.A_p)
+            self._cellwise["laplacian"].matrix(self._inverse_density(), self.A_p)
         else:
             self.A_p = fem.assemble_matrix(self.a_p, self.bcs_p, self.A_p)
             if "laplacian" in self._cellwise:  # (one process: the form's own matrix)
@@ -361,7 +361,7 @@ class _DiscreteProjection:
     def assemble(self, A_p: Any, nullspace: Any, p_solver: fem.LinearSolver) -> None:
         """:math:`PM^{-1}G` of the current density; the solver on first use (collective)."""
         if self.G is not None and self._gradient is not None:
-            self.G = self._gradient.matrix(self._inverse_density(), self.G)
+            self._gradient.matrix(self._inverse_density(), self.G)
         else:
             self.G = fem.assemble_matrix(self.a_G, [], self.G)
             if self._gradient is not None:
