@@ -6,13 +6,14 @@ each cell (a DG0 density) and :math:`B` of P1 functions, is
 change while :math:`k` does. :class:`CellwiseForm` computes them once, with the map from
 every element entry to its place in the matrix (a sparse matrix :math:`S` from the
 owned cells' coefficients to the rows of the assembled operator, local rows and ghost
-rows both), and re-assembles by :math:`S k` and one insertion into the PETSc matrix
-that DOLFINx created for the same form (its layout and local-to-global maps; the
-ghost rows' values go to their owners in PETSc's assembly, as in DOLFINx's own
-assembler). On one process the form adopts DOLFINx's first assembly as a matrix of
-its own over the value array that :math:`S k` writes (:meth:`CellwiseForm.adopt`),
-and a re-assembly is that product alone. The same for a linear form into a ghosted
-vector.
+rows both). The form adopts DOLFINx's first assembly of the same form as a matrix of
+its own (:meth:`CellwiseForm.adopt`): on one process over the value array that
+:math:`S k` writes, under MPI over the owned rows' diagonal and off-diagonal blocks,
+which a re-ordered :math:`S k` writes, the ghost rows' values then added to their
+owners' entries by one scatter (as PETSc's assembly adds them in DOLFINx's own
+assembler). A re-assembly is that product (and exchange) alone; into another matrix
+of the form's layout it is the product and one insertion. The same for a linear form
+into a ghosted vector.
 
 The element tensors of the operators the flow frames re-assemble every pass
 (:func:`p1_laplacian`, :func:`p1_gradient`, :func:`p1_lumped_mass`) are exact for
@@ -27,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from pfem2x import fem
-from pfem2x.compat import PETSc
+from pfem2x.compat import MPI, PETSc
 from pfem2x.mesh import basis_gradients
 
 __all__ = ["CellwiseForm", "p1_gradient", "p1_laplacian", "p1_lumped_mass"]
@@ -137,6 +138,11 @@ class CellwiseForm:
         #: one process: the matrix over the value array :attr:`_own_values` (see adopt)
         self._own: Any = None
         self._own_values: Any = None
+        #: MPI: the re-ordered S, the split arrays, the ghost rows' scatter (see adopt)
+        self._S_split: Any = None
+        self._csr_split: Any = None
+        self._split: Any = None
+        self._exchange: Any = None
 
     def _k_from(self, k: np.ndarray) -> Any:
         self._k.array[:] = k
@@ -147,19 +153,19 @@ class CellwiseForm:
         return self._values.array_r
 
     def adopt(self, A: Any) -> Any:
-        """On one process, a matrix of this form's own with ``A``'s values; else ``A``.
+        """A matrix of this form's own with ``A``'s values, or ``A`` itself.
 
-        ``A`` is DOLFINx's assembled matrix of the form. When it has this form's rows,
-        columns and entries (one process), the returned matrix holds a copy of its values
-        in the array that :meth:`matrix` then writes: a re-assembly is the product alone,
-        without an insertion. Adopt the matrix at its first assembly, so that a solver
-        sees one matrix object for the whole run (a preconditioner that re-uses its
-        set-up for a re-assembled matrix, as GAMG's interpolation, behaves as with
-        DOLFINx's). Under MPI, or for another structure, ``A`` itself is returned and
-        :meth:`matrix` inserts into it.
+        ``A`` is DOLFINx's assembled matrix of the form. The returned matrix holds a copy
+        of its values in an array that :meth:`matrix` then writes: a re-assembly is the
+        product alone (and under MPI one exchange of the ghost rows' values), without an
+        insertion. Adopt the matrix at its first assembly, so that a solver sees one
+        matrix object for the whole run (a preconditioner that re-uses its set-up for a
+        re-assembled matrix, as GAMG's interpolation, behaves as with DOLFINx's). When
+        ``A``'s structure does not hold this form's entries, ``A`` itself is returned
+        and :meth:`matrix` inserts into it (collective).
         """
         if A.getComm().getSize() > 1:
-            return A
+            return self._adopt_split(A)
         indptr, indices, values = A.getValuesCSR()
         if not (np.array_equal(indptr, self.indptr) and np.array_equal(indices, self.indices)):
             return A
@@ -168,6 +174,80 @@ class CellwiseForm:
             A.getSizes(), (self.indptr, self.indices, values), comm=PETSc.COMM_SELF
         )
         self._own_values = PETSc.Vec().createWithArray(values, comm=PETSc.COMM_SELF)
+        return self._own
+
+    def _adopt_split(self, A: Any) -> Any:
+        """:meth:`adopt` under MPI: the owned rows' diagonal and off-diagonal blocks.
+
+        The matrix is PETSc's MPI AIJ over two value arrays of the form's own (the
+        owned rows' entries in the owned columns, then in the others: ``A``'s
+        structure, which also holds the entries of the other ranks' cells). The product
+        :math:`S k` is re-ordered to write the owned rows' values straight into them
+        and the ghost rows' values after them; one scatter adds those to their owners'
+        entries, as PETSc's assembly adds a matrix's off-process values.
+        """
+        comm = A.getComm()
+        mpi = comm.tompi4py()
+        (m, _), (_, N) = A.getSizes()
+        rstart, rend = A.getOwnershipRange()
+        cstart, cend = A.getOwnershipRangeColumn()
+        indptr, gcols, values = A.getValuesCSR()  # owned rows, global columns ascending
+        gcols = np.asarray(gcols, dtype=np.int64)
+        grows = np.repeat(np.arange(m, dtype=np.int64), np.diff(indptr))
+        keys = grows * N + gcols  # ascending
+        diag = (gcols >= cstart) & (gcols < cend)
+        nnz, nd = len(keys), int(np.count_nonzero(diag))
+        place = np.empty(nnz, dtype=np.int64)  # A's entry -> its place in the value array
+        place[np.argsort(~diag, kind="stable")] = np.arange(nnz)
+        # this form's entries (local rows and columns) as global entries
+        rmap, cmap = A.getLGMap()
+        g = np.asarray(rmap.apply(self._entry_rows.astype(PETSc.IntType)), dtype=np.int64)
+        gc = np.asarray(cmap.apply(self.indices), dtype=np.int64)
+        owned = (g >= rstart) & (g < rend)
+        found, at = _lookup(keys, (g[owned] - rstart) * N + gc[owned])
+        # the ghost rows' entries: their places in their owners' value arrays
+        ranges = np.asarray(A.getOwnershipRanges(), dtype=np.int64)
+        gg, ggc = g[~owned], gc[~owned]
+        dest = np.searchsorted(ranges, gg, side="right") - 1
+        by_dest = np.argsort(dest, kind="stable")
+        send = np.bincount(dest, minlength=len(ranges) - 1).astype(np.int64)
+        recv = np.asarray(mpi.alltoall(send.tolist()), dtype=np.int64)
+        asked = np.empty(int(recv.sum()), dtype=np.int64)
+        wanted = ((gg - ranges[dest]) * N + ggc)[by_dest]
+        mpi.Alltoallv([wanted, send], [asked, recv])
+        found_asked, at_asked = _lookup(keys, asked)
+        offset = mpi.exscan(nnz) or 0
+        answer = offset + place[at_asked] if found_asked else np.zeros_like(asked)
+        there = np.empty(len(gg), dtype=np.int64)
+        mpi.Alltoallv([answer, recv], [there, send])
+        ok = found and found_asked
+        if not mpi.allreduce(ok, op=MPI.LAND):
+            return A
+        there_ = np.empty_like(there)
+        there_[by_dest] = there
+        # S re-ordered: owned entries to their places, ghost entries after the nnz
+        target = np.empty(len(g), dtype=np.int64)
+        target[owned] = place[at]
+        target[~owned] = nnz + np.arange(len(gg))
+        n_cells = len(self._k.array_r)
+        self._S_split, self._csr_split = _rows_moved(self._csr, target, nnz + len(gg), n_cells)
+        full = np.zeros(nnz + len(gg), dtype=PETSc.ScalarType)
+        full[place] = values
+        own = full[:nnz]
+        d_ind = np.zeros(m + 1, dtype=PETSc.IntType)
+        o_ind = np.zeros(m + 1, dtype=PETSc.IntType)
+        np.cumsum(np.bincount(grows[diag], minlength=m), out=d_ind[1:])
+        np.cumsum(np.bincount(grows[~diag], minlength=m), out=o_ind[1:])
+        self._split = (
+            (d_ind, (gcols[diag] - cstart).astype(PETSc.IntType), own[:nd]),
+            (o_ind, gcols[~diag].astype(PETSc.IntType), own[nd:]),
+        )
+        self._own = PETSc.Mat().createAIJWithArrays(A.getSizes(), self._split, comm=comm)
+        self._own_values = PETSc.Vec().createWithArray(full, comm=PETSc.COMM_SELF)
+        ghosts = PETSc.Vec().createWithArray(full[nnz:], comm=PETSc.COMM_SELF)
+        owners = PETSc.Vec().createWithArray(own, size=(nnz, PETSc.DECIDE), comm=comm)
+        places = PETSc.IS().createGeneral(there_.astype(PETSc.IntType), comm=PETSc.COMM_SELF)
+        self._exchange = (PETSc.Scatter().create(ghosts, None, owners, places), ghosts, owners)
         return self._own
 
     def matrix(self, k: np.ndarray, A: Any) -> Any:
@@ -180,7 +260,12 @@ class CellwiseForm:
         """
         fem.COUNTERS["matrix_assemblies"] += 1
         if A is self._own:
-            self._S.mult(self._k_from(k), self._own_values)
+            if self._exchange is None:
+                self._S.mult(self._k_from(k), self._own_values)
+            else:
+                self._S_split.mult(self._k_from(k), self._own_values)
+                scatter, ghosts, owners = self._exchange
+                scatter.scatter(ghosts, owners, PETSc.InsertMode.ADD, PETSc.ScatterMode.FORWARD)
             A.stateIncrease()
             return A
         values = self._products(k)
@@ -198,6 +283,36 @@ class CellwiseForm:
             loc.array[self._entry_rows] = values
         b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         return b
+
+
+def _lookup(keys: np.ndarray, wanted: np.ndarray) -> tuple[bool, np.ndarray]:
+    """Whether every ``wanted`` key is in the ascending ``keys``, and where."""
+    at = np.searchsorted(keys, wanted)
+    inside = at < len(keys)
+    found = bool(np.all(inside)) and bool(np.array_equal(keys[at[inside]], wanted))
+    return found, np.where(inside, at, 0)
+
+
+def _rows_moved(csr: tuple, target: np.ndarray, n_rows: int, n_cols: int) -> tuple[Any, tuple]:
+    """The sparse matrix whose row ``target[i]`` is row ``i`` of ``csr`` (others empty).
+
+    Returns the matrix and its CSR arrays, which PETSc uses in place (keep them).
+    """
+    indptr, cols, vals = csr
+    lengths = np.zeros(n_rows, dtype=np.int64)
+    lengths[target] = np.diff(indptr)
+    new_ptr = np.zeros(n_rows + 1, dtype=np.int64)
+    np.cumsum(lengths, out=new_ptr[1:])
+    order = np.argsort(target)  # the source rows in their new order
+    starts = np.asarray(indptr[:-1], dtype=np.int64)[order]
+    n = np.diff(indptr)[order]
+    take = np.repeat(starts - np.cumsum(n) + n, n) + np.arange(int(n.sum()))
+    moved = (
+        new_ptr.astype(PETSc.IntType),
+        np.ascontiguousarray(cols[take]),
+        np.ascontiguousarray(vals[take]),
+    )
+    return PETSc.Mat().createAIJWithArrays((n_rows, n_cols), moved, comm=PETSc.COMM_SELF), moved
 
 
 def local_size(V: Any) -> int:
