@@ -408,6 +408,7 @@ def summary(
             k: comm.allreduce(v, op=MPI.MAX) for k, v in run.get("startup_timings", {}).items()
         },
         "operators": dict(fem.COUNTERS),
+        "auto_keys": dict(solver.auto_keys),
         "dolfinx_version": compat.dolfinx.__version__,
         "mpi_size": comm.size,
         "metrics": solver.metrics(history),

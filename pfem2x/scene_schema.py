@@ -74,6 +74,20 @@ def number(
     return check
 
 
+def auto_or(check: Callable[[str, Any], Any]) -> Callable[[str, Any], Any]:
+    """``"auto"`` (the run chooses; see the key's doc) or what ``check`` accepts."""
+
+    def either(key: str, v: Any) -> Any:
+        if v == "auto":
+            return v
+        try:
+            return check(key, v)
+        except SceneError as exc:
+            raise SceneError(f'{exc} (or "auto")') from None
+
+    return either
+
+
 def integer(lo: int | None = None, hi: int | None = None) -> Callable[[str, Any], int]:
     """An integer, optionally within ``[lo, hi]``."""
 
@@ -445,12 +459,14 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "curvature falls back to the end-point fit)",
         ),
         "pass_pressure": Key(
-            choice("increment", "consistent"),
-            "increment",
+            choice("auto", "increment", "consistent"),
+            "auto",
             doc="PFEM-2, extra_pass with explicit_pressure = consistent: the pressure of the "
             "second pass's end-of-step source; increment = the first pass's p^n + dp, "
             "consistent = solved from the first pass's velocity like p^n (one more "
-            "pressure solve per step; runs the dam break at density ratio 1000)",
+            "pressure solve per step; runs the dam break at density ratio 1000); auto = "
+            "consistent for two phases whose densities differ by a factor of 10 or more, "
+            "else increment",
         ),
         "explicit_pressure": Key(
             choice("consistent", "lagged"),
@@ -502,14 +518,15 @@ SCHEMA: dict[str, dict[str, Key]] = {
         ),
         "rtol": Key(number(0.0, 1.0, lo_open=True), 1e-8, doc="linear solver tolerance"),
         "divergence_rtol": Key(
-            number(0.0, 1.0),
-            0.0,
+            auto_or(number(0.0, 1.0)),
+            "auto",
             doc="pressure step: 0 = the approximate projection (the Laplacian's increment: "
             "the corrected velocity is weakly divergence-free only approximately, least at a "
             "density jump); > 0 = the discrete projection, what is left removed with the "
             "correction's own Schur complement to this relative tolerance (GMRES, the "
             "Laplacian's AMG as preconditioner, at most 30 iterations; closed boxes, "
-            "correction = velocity)",
+            "correction = velocity); auto = 0.05 for PFEM-2 with two phases where the "
+            "discrete projection applies (closed walls, correction = velocity), else 0",
         ),
         "quadrature_degree": Key(integer(1, 20), 4, doc="quadrature degree of the flow forms"),
     },

@@ -52,8 +52,9 @@ def front_height_errors(m: dict) -> tuple[float, float]:
 def test_dam_break_courant5_whole_collapse(shared_tmp):
     """The scene as shipped (100 x 50, PFEM-2 at Courant 5, adaptive, 17 steps) to T = 3.33.
 
-    PFEM-2's keys from the scene's ``[frames.lagrangian]`` (the incremental pressure,
-    the consistent pass pressure, the discrete projection). Reaches the end, nothing
+    PFEM-2 with its frame's defaults (the incremental pressure; at this density ratio
+    ``"auto"`` takes the consistent pass pressure and the discrete projection, reported
+    in ``auto_keys``). Reaches the end, nothing
     non-finite, kinetic energy never above the potential energy released (within 1 %
     of it: both are P1 / cell-fraction approximations), the density's water volume at
     round-off (the level set's shift), the water particles' volume within 0.5 %
@@ -67,6 +68,7 @@ def test_dam_break_courant5_whole_collapse(shared_tmp):
     s = res.summary
     m = s["metrics"]
     assert s["frame"] == "lagrangian" and m["courant_max"] >= 5.0
+    assert s["auto_keys"] == {"flow.divergence_rtol": 0.05, "flow.pass_pressure": "consistent"}
     assert m["volume_change_max_water"] < 1e-9
     assert m["volume_change_max_particles_water"] < 0.005
     assert m["energy_released_final"] > 0.0
@@ -181,9 +183,10 @@ def test_velocity_correction_keeps_the_water(shared_tmp):
     assert mom["volume_change_max_water"] > max(0.05, 5.0 * vel["volume_change_max_water"])
 
 
-#: Rayleigh-Taylor's flow keys (the schema defaults), spelled out: the scene's
-#: ``[frames.lagrangian]`` differs from them in the last two.
-FRAME_DEFAULTS = (
+#: The incremental pressure with the approximate projection and the first pass's
+#: p^n + dp as the second pass's pressure, spelled out: the frame's defaults at this
+#: density ratio ("auto") differ from them in the last two.
+APPROXIMATE_SET = (
     'flow.pressure_step="increment"',
     'flow.density="level_set"',
     "flow.mass_weighted=false",
@@ -194,8 +197,8 @@ FRAME_DEFAULTS = (
 )
 
 
-def test_frame_defaults_run_with_the_consistent_pass_pressure(shared_tmp):
-    """The frame's defaults with ``flow.pass_pressure = "consistent"`` run the collapse.
+def test_approximate_projection_runs_with_the_consistent_pass_pressure(shared_tmp):
+    """The approximate set with ``flow.pass_pressure = "consistent"`` runs the collapse.
 
     Small variant (60 x 30, Courant 5, T = 3.33). The incremental pressure with the
     full explicit source, the schema's other keys: the second pass's end source from
@@ -205,7 +208,7 @@ def test_frame_defaults_run_with_the_consistent_pass_pressure(shared_tmp):
     The particles' water volume changes by 5.2 % (front_error 0.175): stable, not
     accurate (docs/RESULTS.md, "Dam break").
     """
-    res = run(shared_tmp, *QUIET, *FRAME_DEFAULTS, 'flow.pass_pressure="consistent"')
+    res = run(shared_tmp, *QUIET, *APPROXIMATE_SET, 'flow.pass_pressure="consistent"')
     assert res.status == "ok" and res.exit_code == 0, res.summary.get("message")
     m = res.summary["metrics"]
     assert m["courant_max"] >= 5.0
@@ -230,7 +233,7 @@ def test_discrete_projection_keeps_the_water_particles(shared_tmp):
     against 0.178), the kinetic energy below the energy released. Each step reports its GMRES
     iterations (``divergence_iterations``, at most 30).
     """
-    res = run(shared_tmp, *QUIET, *FRAME_DEFAULTS, 'flow.pass_pressure="consistent"',
+    res = run(shared_tmp, *QUIET, *APPROXIMATE_SET, 'flow.pass_pressure="consistent"',
               "flow.divergence_rtol=0.05")  # fmt: skip
     assert res.status == "ok" and res.exit_code == 0, res.summary.get("message")
     m = res.summary["metrics"]
@@ -252,7 +255,7 @@ def test_discrete_projection_removes_the_weak_divergence():
     """
     norms = {}
     for opt in (0.0, 0.05):
-        over = [*FRAME_DEFAULTS, 'flow.pass_pressure="consistent"', f"flow.divergence_rtol={opt}"]
+        over = [*APPROXIMATE_SET, 'flow.pass_pressure="consistent"', f"flow.divergence_rtol={opt}"]
         sc = load_scene("dam-break", over, "small")
         s = make_solver(sc, build_domain(sc, MPI.COMM_SELF))
         s.step(0.0, 0.0225)  # the adaptive steps of the small variant's run
@@ -289,7 +292,7 @@ def test_consistent_pass_pressure_costs_one_solve_and_bounds_the_air_source():
     """
     peaks, counts = {}, {}
     for opt in ("increment", "consistent"):
-        sc = load_scene("dam-break", [*FRAME_DEFAULTS, f'flow.pass_pressure="{opt}"'], "small")
+        sc = load_scene("dam-break", [*APPROXIMATE_SET, f'flow.pass_pressure="{opt}"'], "small")
         s = make_solver(sc, build_domain(sc, MPI.COMM_SELF))
         dt0, dt = 0.0225, 0.027  # the adaptive steps of the small variant's run
         s.step(0.0, dt0)

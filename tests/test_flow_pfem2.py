@@ -9,6 +9,7 @@ import pytest
 from pfem2x import fem
 from pfem2x.compat import MPI
 from pfem2x.physics.flow import positive_fraction
+from pfem2x.physics.flow.problem import FlowProblem
 from pfem2x.runner import Simulation, build_domain, make_solver
 from pfem2x.scene import SceneError, load_scene
 
@@ -23,6 +24,39 @@ def solver_for(*overrides: str):
     sc = load_scene("rayleigh-taylor", [*LAG, *overrides], variant="small")
     dom = build_domain(sc, MPI.COMM_WORLD)
     return make_solver(sc, dom), dom
+
+
+@pytest.mark.parametrize(
+    ("scene", "sets", "rtol", "pass_pressure", "auto"),
+    [
+        ("dam-break", [], 0.05, "consistent", "both"),  # density ratio 1000
+        ("dam-break", ["phases.air.density=100.0"], 0.05, "consistent", "both"),  # ratio 10
+        ("dam-break", ["phases.air.density=200.0"], 0.05, "increment", "both"),  # ratio 5
+        ("dam-break", ["method.frame=eulerian"], 0.0, None, "rtol"),  # the level set: off
+        ("rayleigh-taylor", [], 0.05, "increment", "both"),  # ratio 3
+        ("taylor-green", [], 0.0, "increment", "both"),  # one phase
+        ("channel", ["method.frame=lagrangian"], 0.0, "increment", "rtol"),  # outflow, 1 pass
+        ("static-drop", ["method.frame=lagrangian"], 0.05, None, "rtol"),  # total pressure
+        ("dam-break", ["flow.divergence_rtol=0"], 0.0, "consistent", "pass"),  # a user's value
+        ("dam-break", ['flow.pass_pressure="increment"'], 0.05, "increment", "rtol"),
+    ],
+)
+def test_frame_defaults_resolve_the_auto_keys(scene, sets, rtol, pass_pressure, auto):
+    """One option set per frame: ``"auto"`` from the frame, the phases and the walls.
+
+    ``FlowProblem.auto`` (summary.json's ``auto_keys``) holds the keys the scene left to
+    ``"auto"`` and the run reads: the pass pressure only with two incremental passes.
+    """
+    pr = FlowProblem(load_scene(scene, sets), 2)
+    assert pr.divergence_rtol == rtol
+    if pass_pressure is not None:
+        assert pr.pass_pressure == pass_pressure
+    expected = {}
+    if auto in ("rtol", "both"):
+        expected["flow.divergence_rtol"] = rtol
+    if auto in ("pass", "both"):
+        expected["flow.pass_pressure"] = pass_pressure
+    assert pr.auto == expected
 
 
 @pytest.mark.mpi

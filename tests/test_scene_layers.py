@@ -41,10 +41,15 @@ def write(tmp_path, extra: str):
 def test_each_frame_gets_its_own_table():
     lag = load_scene("dam-break")
     eul = load_scene("dam-break", ["method.frame=eulerian"])
-    assert (lag.flow.pressure_step, lag.flow.pass_pressure) == ("increment", "consistent")
-    assert lag.flow.divergence_rtol == 0.05 and lag.time.courant == 5.0
-    assert (eul.flow.pressure_step, eul.flow.divergence_rtol) == ("total", 0.0)
-    assert eul.flow.pass_pressure == "increment" and eul.time.courant == 1.0
+    # PFEM-2 with its frame's defaults ("auto": resolved by the flow solver)
+    assert (lag.flow.pressure_step, lag.flow.pass_pressure) == ("increment", "auto")
+    assert lag.flow.divergence_rtol == "auto" and lag.time.courant == 5.0
+    assert (eul.flow.pressure_step, eul.flow.divergence_rtol) == ("total", "auto")
+    assert eul.time.courant == 1.0
+    rt = load_scene("rayleigh-taylor")
+    assert rt.flow.predictor_particles == 0.5 and rt.flow.rtol == 1e-6
+    rt_ls = load_scene("rayleigh-taylor", ["method.frame=eulerian"])
+    assert rt_ls.flow.predictor_particles == 1.0 and rt_ls.flow.rtol == 1e-8
     # the variant (no frame keys) keeps each frame's table
     small = load_scene("dam-break", ["method.frame=eulerian"], "small")
     assert small.time.courant == 1.0 and small.mesh.cells == (60, 30)
@@ -178,24 +183,27 @@ def test_check_names_the_frame_keys_the_run_takes():
             "-m",
             "pfem2x",
             "check",
-            "dam-break",
+            "rayleigh-taylor",
             "--set",
-            "flow.divergence_rtol=0.01",
+            "flow.predictor_particles=1",
         ],
         capture_output=True,
         text=True,
         timeout=300,
     )
     assert res.returncode == 0, res.stderr
-    assert res.stdout.strip().endswith('[frames.lagrangian]: flow.pass_pressure = "consistent"')
+    assert res.stdout.strip().endswith(
+        "[frames.lagrangian]: flow.predictor_rtol = 0.0001, "
+        "flow.predictor_divergence_rtol = 0.2, flow.rtol = 1e-06"
+    )
 
 
 def test_set_of_a_table_sets_its_leaves_and_frames_are_not_set():
     sc = load_scene("dam-break", ['method={frame="eulerian"}'])
     assert sc.method.frame == "eulerian" and sc.flow.pressure_step == "total"
     assert sc.method.particles_per_cell == 8  # the rest of [method] stays
-    sc = load_scene("dam-break", ["flow={rtol=1e-6}"])
-    assert sc.flow.rtol == 1e-6 and sc.flow.divergence_rtol == 0.05
+    sc = load_scene("rayleigh-taylor", ["flow={reinit_every=2}"])
+    assert sc.flow.reinit_every == 2 and sc.flow.predictor_particles == 0.5
     for bad in ("frames.lagrangian.flow.rtol=1e-3", "variants.small.mesh.cells=[4,2]"):
         with pytest.raises(SceneError, match="read from the scene file only"):
             load_scene("dam-break", [bad])

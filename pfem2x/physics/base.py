@@ -91,6 +91,8 @@ class Solver:
         self.comm: MPI.Comm = domain.comm
         #: wall seconds per phase, accumulated (``particles``, ``assembly``, ``solve``)
         self.timings: dict[str, float] = {"particles": 0.0, "assembly": 0.0, "solve": 0.0}
+        #: the value each of the scene's ``"auto"`` keys took in this run (summary.json)
+        self.auto_keys: dict[str, Any] = {}
 
     # -- time stepping ------------------------------------------------------
     def max_velocity(self, t: float) -> float:

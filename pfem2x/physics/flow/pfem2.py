@@ -105,15 +105,13 @@ two-stage viscous predictor); once per step +2 vectors (right-hand side, source 
 +1, the vorticity, with one viscous phase) and +1 solve for the consistent pressure (twice
 that with ``flow.pass_pressure = "consistent"``); +1 vector (the heavy phase's source) with
 ``flow.light_source = "gravity"``.
-Large density ratios (dam break, 1000): ``flow.pressure_step = "total"``,
-``flow.pic_fraction_light = 1``, ``flow.affine = true`` and ``flow.mass_weighted = true``
-(see :meth:`LagrangianFlow._kick`, :meth:`LagrangianFlow._project_velocity`). They are not
-the defaults: no one set serves the dam break and Rayleigh–Taylor (docs/RESULTS.md, "Dam
-break": the incremental pressure with the full explicit source diverges at ratio 1000, its
-second pass's source from :math:`p^n + \delta p^{(1)}` throwing the air around; with
-``flow.pass_pressure = "consistent"`` it runs but loses 3–4 % of the water; the total
-pressure puts Rayleigh–Taylor's heavy volume off by 2.6 %, the light phase's gravity-only
-source stalls its spikes).
+Large density ratios (dam break, 1000) run with the frame's defaults for two phases:
+``flow.pass_pressure = "auto"`` takes the second pass's end source from the consistent
+pressure from a density ratio of 10 on (:math:`p^n + \delta p^{(1)}` throws the air around
+and diverges from ratio 100 on), ``flow.divergence_rtol = "auto"`` the discrete projection
+(the water particles' volume); docs/RESULTS.md, "Dam break". The total-pressure set
+(``flow.pressure_step = "total"``, ``flow.pic_fraction_light = 1``, ``flow.affine`` and
+``flow.mass_weighted``) is first order in :math:`\Delta t`, an alternative only.
 
 Scene keys this frame reads (besides the problem's: ``flow.gravity``, the
 sides, ``initial_velocity``, ``velocity_scale``, ``time_factor``,
@@ -137,7 +135,7 @@ key                                 effect in this frame
 ``flow.pass_splits``                the second pass's move: one, linear in time, or m parts
 ``flow.predictor``                  the first pass: ``extrapolated`` or ``euler``
 ``flow.viscous_step``               the second pass's viscous predictor: ``sdirk2`` or ``euler``
-``flow.pass_pressure``              the second pass's end source: ``increment`` or ``consistent``
+``flow.pass_pressure``              the second pass's end source: ``increment``, ``consistent``
 ``flow.pic_fraction``               step 4 blend towards the mesh velocity (0: FLIP)
 ``flow.pic_fraction_light``         the same for the light phase (two phases)
 ``flow.light_source``               ``full`` or ``gravity`` (see :meth:`LagrangianFlow._kick`)
@@ -232,7 +230,8 @@ class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers,
         #: the explicit source's pressure solved from u^n each step (flow.explicit_pressure)
         self.consistent_pressure = not self.gravity_only and fl.explicit_pressure == "consistent"
         #: the second pass's end source from the pressure of u^(1) (flow.pass_pressure)
-        self.consistent_end_source = self.consistent_pressure and fl.pass_pressure == "consistent"
+        pp = self.problem.pass_pressure
+        self.consistent_end_source = self.consistent_pressure and pp == "consistent"
         #: the source integrated along the path (False: its end points; for measurements)
         self.path_source = True
         #: mean sub-steps per particle of the last move's source integral

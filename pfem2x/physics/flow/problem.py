@@ -47,6 +47,15 @@ from pfem2x.scene import FLOW_SIDES, Scene, SceneError
 __all__ = ["FlowProblem", "FlowSolver"]
 
 
+#: flow.divergence_rtol = "auto": the discrete projection's tolerance for PFEM-2 with two
+#: phases (the Rayleigh-Taylor, dam-break and rising-bubble scenes' value; docs/RESULTS.md,
+#: "Dam break": without it the water particles lose 3-5 % at Courant 5)
+AUTO_DIVERGENCE_RTOL = 0.05
+#: flow.pass_pressure = "auto": the consistent pass pressure from this density ratio on (the
+#: dam break at Courant 5 with the increment diverged at ratios 100 and above and ran at 33)
+AUTO_CONSISTENT_RATIO = 10.0
+
+
 class FlowProblem:
     """The scene's flow data.
 
@@ -111,8 +120,6 @@ class FlowProblem:
         self.reinit_every = int(fl.reinit_every)
         self.volume_correction = bool(fl.volume_correction)
         self.rtol = float(fl.rtol)
-        #: flow.divergence_rtol: > 0, the discrete projection (:mod:`.projection`)
-        self.divergence_rtol = float(fl.divergence_rtol)
         self.correction = str(fl.correction)
         self.incremental = fl.pressure_step == "increment"
         self.quadrature_degree = int(fl.quadrature_degree)
@@ -124,6 +131,43 @@ class FlowProblem:
         self.outflow = "outflow" in self.sides.values()
         #: the viscous term in the gradient form mu grad(u):grad(w) (see :meth:`viscous_form`)
         self.gradient_form = self.outflow and len({p[2] for p in phases}) == 1
+        #: what each ``"auto"`` key of the frame defaults resolved to (summary.json)
+        self.auto: dict[str, Any] = {}
+        #: flow.divergence_rtol: > 0, the discrete projection (:mod:`.projection`)
+        self.divergence_rtol = self._auto(
+            "flow.divergence_rtol",
+            fl.divergence_rtol,
+            AUTO_DIVERGENCE_RTOL
+            if scene.frame == "lagrangian"
+            and self.two_phase
+            and not self.outflow
+            and self.correction == "velocity"
+            else 0.0,
+        )
+        #: flow.pass_pressure (PFEM-2): "increment" or "consistent" (recorded where read)
+        self.pass_pressure = self._auto(
+            "flow.pass_pressure",
+            fl.pass_pressure,
+            "consistent" if self.density_ratio >= AUTO_CONSISTENT_RATIO else "increment",
+            record=scene.frame == "lagrangian"
+            and bool(fl.extra_pass)
+            and self.incremental
+            and fl.explicit_pressure == "consistent",
+        )
+
+    @property
+    def density_ratio(self) -> float:
+        """The largest phase density over the smallest (1 with one phase)."""
+        rho = [p[1] for p in self.phases] if self.two_phase else [1.0]
+        return max(rho) / min(rho) if min(rho) > 0.0 else float("inf")
+
+    def _auto(self, key: str, value: Any, choice: Any, record: bool = True) -> Any:
+        """``value``, or ``choice`` when it is ``"auto"`` (then in :attr:`auto` if ``record``)."""
+        if value != "auto":
+            return float(value) if isinstance(value, int | float) else value
+        if record:
+            self.auto[key] = choice
+        return choice
 
     def viscous_form(self, mu: Any, v: Any, w: Any) -> Any:
         """The viscous term's integrand for trial ``v`` and test ``w``.
@@ -165,6 +209,7 @@ class FlowSolver(Solver):
                 f"the file's mesh is {domain.gdim}D"
             )
         self.problem = pr = FlowProblem(scene, domain.gdim)
+        self.auto_keys.update(pr.auto)
         if pr.divergence_rtol > 0.0 and (pr.outflow or pr.correction != "velocity"):
             raise SceneError(
                 "flow.divergence_rtol: the discrete projection needs closed walls (no outflow "
