@@ -8,6 +8,7 @@ or file), 3 the simulation diverged, 130 / 143 interrupted by SIGINT / SIGTERM
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 from collections.abc import MutableMapping
@@ -118,10 +119,14 @@ def main(argv: list[str] | None = None) -> int:
             dt, steps = time_grid(scene, domain, solver)
             if comm.rank == 0:
                 taken = f"; [frames.{scene.frame}]: " + ", ".join(scene.frame_keys)
+                auto = "; auto: " + ", ".join(
+                    f"{k} = {json.dumps(v)}" for k, v in solver.auto_keys.items()
+                )
                 print(
                     f"ok: {scene.name} ({scene.physics}, {scene.frame}), "
                     f"{domain.num_cells_global()} cells, {steps} steps of dt = {dt:.4g}"
                     + (taken if scene.frame_keys else "")
+                    + (auto if solver.auto_keys else "")
                 )
             return 0
         out = Path(args.out) if args.out else None  # None: runs/<scene name>, checked

@@ -194,7 +194,8 @@ def test_check_names_the_frame_keys_the_run_takes():
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip().endswith(
         "[frames.lagrangian]: flow.predictor_rtol = 0.0001, "
-        "flow.predictor_divergence_rtol = 0.2, flow.rtol = 1e-06"
+        "flow.predictor_divergence_rtol = 0.2, flow.rtol = 1e-06; "
+        'auto: flow.divergence_rtol = 0.05, flow.pass_pressure = "increment"'
     )
 
 
