@@ -135,7 +135,7 @@ key                                 effect in this frame
 ``flow.pass_splits``                the second pass's move: one, linear in time, or m parts
 ``flow.predictor``                  the first pass: ``extrapolated`` or ``euler``
 ``flow.viscous_step``               the second pass's viscous predictor: ``sdirk2`` or ``euler``
-``flow.pass_pressure``              the second pass's end source: ``increment``, ``consistent``
+``flow.pass_pressure``              the second pass's end source (``increment``, ``consistent``)
 ``flow.pic_fraction``               step 4 blend towards the mesh velocity (0: FLIP)
 ``flow.pic_fraction_light``         the same for the light phase (two phases)
 ``flow.light_source``               ``full`` or ``gravity`` (see :meth:`LagrangianFlow._kick`)
