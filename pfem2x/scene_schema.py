@@ -477,12 +477,14 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "step's p^n",
         ),
         "pressure_step": Key(
-            choice("increment", "total"),
-            "increment",
+            choice("auto", "increment", "total"),
+            "auto",
             doc="increment: the explicit source has -grad(p^n)/rho and the pressure step "
             "solves the increment (paper); total: the explicit source is gravity only and "
             "the pressure step solves the whole pressure each step (non-incremental; "
-            "energy-stable at large density ratios, first order in dt)",
+            "energy-stable at large density ratios, first order in dt); auto = total for "
+            "the level set (eulerian) with two phases whose densities differ by a factor "
+            "of 4 or more, else increment",
         ),
         "correction": Key(
             choice("velocity", "momentum"),

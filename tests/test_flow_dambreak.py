@@ -68,7 +68,11 @@ def test_dam_break_courant5_whole_collapse(shared_tmp):
     s = res.summary
     m = s["metrics"]
     assert s["frame"] == "lagrangian" and m["courant_max"] >= 5.0
-    assert s["auto_keys"] == {"flow.divergence_rtol": 0.05, "flow.pass_pressure": "consistent"}
+    assert s["auto_keys"] == {
+        "flow.pressure_step": "increment",
+        "flow.divergence_rtol": 0.05,
+        "flow.pass_pressure": "consistent",
+    }
     assert m["volume_change_max_water"] < 1e-9
     assert m["volume_change_max_particles_water"] < 0.005
     assert m["energy_released_final"] > 0.0
@@ -319,7 +323,7 @@ def test_consistent_pass_pressure_costs_one_solve_and_bounds_the_air_source():
 def test_level_set_at_courant5_holds_but_drifts(shared_tmp):
     """Side by side at Courant 5 (40 x 20, T = 2): the level set holds, PFEM-2 is right.
 
-    With ``flow.pressure_step = "total"`` (its frame table) the level-set frame
+    With ``flow.pressure_step = "total"`` (its frame default here) the level-set frame
     does not diverge here (it did at Courant 2 with the incremental pressure). It
     drifts instead: its front lags (max |Z - Z_MM| 0.342 against PFEM-2's 0.179,
     the scene's keys) and its kinetic energy exceeds the potential energy released

@@ -27,36 +27,57 @@ def solver_for(*overrides: str):
 
 
 @pytest.mark.parametrize(
-    ("scene", "sets", "rtol", "pass_pressure", "auto"),
+    ("scene", "sets", "expected"),
     [
-        ("dam-break", [], 0.05, "consistent", "both"),  # density ratio 1000
-        ("dam-break", ["phases.air.density=100.0"], 0.05, "consistent", "both"),  # ratio 10
-        ("dam-break", ["phases.air.density=200.0"], 0.05, "increment", "both"),  # ratio 5
-        ("dam-break", ["method.frame=eulerian"], 0.0, None, "rtol"),  # the level set: off
-        ("rayleigh-taylor", [], 0.05, "increment", "both"),  # ratio 3
-        ("taylor-green", [], 0.0, "increment", "both"),  # one phase
-        ("channel", ["method.frame=lagrangian"], 0.0, "increment", "rtol"),  # outflow, 1 pass
-        ("static-drop", ["method.frame=lagrangian"], 0.05, None, "rtol"),  # total pressure
-        ("dam-break", ["flow.divergence_rtol=0"], 0.0, "consistent", "pass"),  # a user's value
-        ("dam-break", ['flow.pass_pressure="increment"'], 0.05, "increment", "rtol"),
+        # density ratio 1000: PFEM-2's increment with the consistent pass pressure
+        ("dam-break", [], {"step": "increment", "rtol": 0.05, "pass": "consistent"}),
+        (
+            "dam-break",
+            ["phases.air.density=100.0"],
+            {"step": "increment", "rtol": 0.05, "pass": "consistent"},
+        ),
+        (
+            "dam-break",
+            ["phases.air.density=200.0"],
+            {"step": "increment", "rtol": 0.05, "pass": "increment"},
+        ),
+        # the level set: the total pressure from ratio 4 on, no discrete projection
+        ("dam-break", ["method.frame=eulerian"], {"step": "total", "rtol": 0.0}),
+        (
+            "dam-break",
+            ["method.frame=eulerian", "phases.air.density=250.0"],
+            {"step": "total", "rtol": 0.0},
+        ),
+        (
+            "dam-break",
+            ["method.frame=eulerian", "phases.air.density=300.0"],
+            {"step": "increment", "rtol": 0.0},
+        ),
+        ("rayleigh-taylor", [], {"step": "increment", "rtol": 0.05, "pass": "increment"}),
+        ("rayleigh-taylor", ["method.frame=eulerian"], {"step": "increment", "rtol": 0.0}),
+        ("taylor-green", [], {"step": "increment", "rtol": 0.0, "pass": "increment"}),
+        # outflow and one phase (one pass: no pass pressure read)
+        ("channel", ["method.frame=lagrangian"], {"step": "increment", "rtol": 0.0}),
+        ("static-drop", ["method.frame=lagrangian"], {"rtol": 0.05}),  # total: in the scene
+        # a user's value wins (and is not listed)
+        ("dam-break", ["flow.divergence_rtol=0"], {"step": "increment", "pass": "consistent"}),
+        ("dam-break", ['flow.pass_pressure="increment"'], {"step": "increment", "rtol": 0.05}),
     ],
 )
-def test_frame_defaults_resolve_the_auto_keys(scene, sets, rtol, pass_pressure, auto):
+def test_frame_defaults_resolve_the_auto_keys(scene, sets, expected):
     """One option set per frame: ``"auto"`` from the frame, the phases and the walls.
 
-    ``FlowProblem.auto`` (summary.json's ``auto_keys``) holds the keys the scene left to
-    ``"auto"`` and the run reads: the pass pressure only with two incremental passes.
+    ``FlowProblem.auto`` (summary.json's ``auto_keys``) holds exactly the keys the scene
+    left to ``"auto"`` and the run reads (the pass pressure only with two incremental
+    passes), with their values.
     """
     pr = FlowProblem(load_scene(scene, sets), 2)
-    assert pr.divergence_rtol == rtol
-    if pass_pressure is not None:
-        assert pr.pass_pressure == pass_pressure
-    expected = {}
-    if auto in ("rtol", "both"):
-        expected["flow.divergence_rtol"] = rtol
-    if auto in ("pass", "both"):
-        expected["flow.pass_pressure"] = pass_pressure
-    assert pr.auto == expected
+    names = {"step": "flow.pressure_step", "rtol": "flow.divergence_rtol"}
+    names["pass"] = "flow.pass_pressure"
+    assert pr.auto == {names[k]: v for k, v in expected.items()}
+    resolved = {"step": pr.pressure_step, "rtol": pr.divergence_rtol, "pass": pr.pass_pressure}
+    for k, v in expected.items():
+        assert resolved[k] == v
 
 
 @pytest.mark.mpi

@@ -42,9 +42,9 @@ def test_each_frame_gets_its_own_table():
     lag = load_scene("dam-break")
     eul = load_scene("dam-break", ["method.frame=eulerian"])
     # PFEM-2 with its frame's defaults ("auto": resolved by the flow solver)
-    assert (lag.flow.pressure_step, lag.flow.pass_pressure) == ("increment", "auto")
+    assert (lag.flow.pressure_step, lag.flow.pass_pressure) == ("auto", "auto")
     assert lag.flow.divergence_rtol == "auto" and lag.time.courant == 5.0
-    assert (eul.flow.pressure_step, eul.flow.divergence_rtol) == ("total", "auto")
+    assert (eul.flow.pressure_step, eul.flow.divergence_rtol) == ("auto", "auto")
     assert eul.time.courant == 1.0
     rt = load_scene("rayleigh-taylor")
     assert rt.flow.predictor_particles == 0.5 and rt.flow.rtol == 1e-6
@@ -106,7 +106,7 @@ def test_resolved_scene_has_the_frame_keys_and_no_tables():
     sc = load_scene("dam-break", ["method.frame=eulerian"])
     raw = tomllib.loads(sc.resolved_toml())
     assert "frames" not in raw and "variants" not in raw
-    assert raw["flow"]["pressure_step"] == "total" and raw["time"]["courant"] == 1.0
+    assert raw["flow"]["pressure_step"] == "auto" and raw["time"]["courant"] == 1.0
     again = validate(raw)
     assert again.flow == sc.flow and again.time == sc.time
 
@@ -170,13 +170,16 @@ def test_bad_frame_tables(tmp_path, extra, needles):
 
 
 def test_check_names_the_frame_keys_the_run_takes():
-    assert load_scene("dam-break", ["method.frame=eulerian"]).frame_keys == (
-        'flow.pressure_step = "total"',
-        "time.courant = 1.0",
+    assert load_scene("rayleigh-taylor").frame_keys == (
+        "flow.predictor_particles = 0.5",
+        "flow.predictor_rtol = 0.0001",
+        "flow.predictor_divergence_rtol = 0.2",
+        "flow.rtol = 1e-06",
     )
     # a --set of one key (or of the step) leaves the others
-    sc = load_scene("dam-break", ["method.frame=eulerian", "time.dt=0.001"])
-    assert sc.frame_keys == ('flow.pressure_step = "total"',)
+    sc = load_scene("dam-break", ["method.frame=eulerian"])
+    assert sc.frame_keys == ("time.courant = 1.0",)
+    assert load_scene("dam-break", ["method.frame=eulerian", "time.dt=0.001"]).frame_keys == ()
     res = subprocess.run(
         [
             sys.executable,
@@ -195,13 +198,14 @@ def test_check_names_the_frame_keys_the_run_takes():
     assert res.stdout.strip().endswith(
         "[frames.lagrangian]: flow.predictor_rtol = 0.0001, "
         "flow.predictor_divergence_rtol = 0.2, flow.rtol = 1e-06; "
-        'auto: flow.divergence_rtol = 0.05, flow.pass_pressure = "increment"'
+        'auto: flow.pressure_step = "increment", flow.divergence_rtol = 0.05, '
+        'flow.pass_pressure = "increment"'
     )
 
 
 def test_set_of_a_table_sets_its_leaves_and_frames_are_not_set():
     sc = load_scene("dam-break", ['method={frame="eulerian"}'])
-    assert sc.method.frame == "eulerian" and sc.flow.pressure_step == "total"
+    assert sc.method.frame == "eulerian" and sc.time.courant == 1.0
     assert sc.method.particles_per_cell == 8  # the rest of [method] stays
     sc = load_scene("rayleigh-taylor", ["flow={reinit_every=2}"])
     assert sc.flow.reinit_every == 2 and sc.flow.predictor_particles == 0.5

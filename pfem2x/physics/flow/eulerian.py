@@ -25,7 +25,8 @@ One step:
 Two phases with gravity: :math:`\rho g` is the balanced force of
 :mod:`pfem2x.physics.flow.balanced` (built on the zero iso-line of
 :math:`\phi`), in the predictor with ``flow.pressure_step = "increment"`` and
-in the pressure step with ``"total"``; the level-set solve starts from
+in the pressure step with ``"total"`` (the default, ``"auto"``, from a density ratio of
+4 on: the increment gains energy from 5 on); the level-set solve starts from
 :math:`\phi^n`. A flat interface inside cells stays at rest to solver tolerance.
 
 Equal-order P1/P1 is stabilised only by the splitting (the pressure Laplacian
