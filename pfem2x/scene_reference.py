@@ -24,6 +24,9 @@ def _kind(check: Callable[[str, Any], Any]) -> str:
     if base == "list_of":
         inner = next((c for c in cells if callable(c)), None)
         return f"list of {_kind(inner)}" if inner else "list"
+    if base == "auto_or":
+        inner = next((c for c in cells if callable(c)), None)
+        return f"`auto` or {_kind(inner)}" if inner else "`auto` or value"
     names = {
         "number": "number",
         "integer": "integer",
