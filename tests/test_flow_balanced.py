@@ -61,6 +61,23 @@ def test_discrete_projection_keeps_the_rest(frame):
     run_at_rest(frame, 0.5137, 1000, "flow.divergence_rtol=0.05")
 
 
+@pytest.mark.parametrize(
+    "keys",
+    [
+        ["flow.divergence_rtol=0"],  # PFEM-2's approximate projection
+        [  # the total-pressure set (the dam break's alternative at ratio 1000)
+            'flow.pressure_step="total"',
+            'flow.light_source="gravity"',
+            "flow.pic_fraction_light=1.0",
+            "flow.mass_weighted=true",
+        ],
+    ],
+)
+def test_other_option_sets_keep_the_rest(keys):
+    """PFEM-2 at ratio 1000 with keys other than its frame's defaults."""
+    run_at_rest("lagrangian", 0.5137, 1000, *keys)
+
+
 @pytest.mark.mpi
 @pytest.mark.parametrize("frame", ["lagrangian", "eulerian"])
 def test_flat_interface_at_rest_in_parallel(frame):
