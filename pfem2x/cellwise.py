@@ -223,8 +223,8 @@ class CellwiseForm:
         ok = found and found_asked
         if not mpi.allreduce(ok, op=MPI.LAND):
             return A
-        there_ = np.empty_like(there)
-        there_[by_dest] = there
+        ghost_places = np.empty_like(there)
+        ghost_places[by_dest] = there
         # S re-ordered: owned entries to their places, ghost entries after the nnz
         target = np.empty(len(g), dtype=np.int64)
         target[owned] = place[at]
@@ -246,7 +246,7 @@ class CellwiseForm:
         self._own_values = PETSc.Vec().createWithArray(full, comm=PETSc.COMM_SELF)
         ghosts = PETSc.Vec().createWithArray(full[nnz:], comm=PETSc.COMM_SELF)
         owners = PETSc.Vec().createWithArray(own, size=(nnz, PETSc.DECIDE), comm=comm)
-        places = PETSc.IS().createGeneral(there_.astype(PETSc.IntType), comm=PETSc.COMM_SELF)
+        places = PETSc.IS().createGeneral(ghost_places.astype(PETSc.IntType), comm=PETSc.COMM_SELF)
         self._exchange = (PETSc.Scatter().create(ghosts, None, owners, places), ghosts, owners)
         return self._own
 

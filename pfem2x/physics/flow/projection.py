@@ -231,7 +231,7 @@ class PressureProjection:
             self._cellwise["laplacian"].matrix(self._inverse_density(), self.A_p)
         else:
             self.A_p = fem.assemble_matrix(self.a_p, self.bcs_p, self.A_p)
-            if "laplacian" in self._cellwise:  # (one process: the form's own matrix)
+            if "laplacian" in self._cellwise:  # the form's own matrix from now on
                 self.A_p = self._cellwise["laplacian"].adopt(self.A_p)
         if not self.bcs_p:
             self.nullspace = compat.constant_nullspace(self.A_p)
