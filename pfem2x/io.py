@@ -6,7 +6,6 @@ only. ParaView opens ``fields.xdmf``, ``particles.pvd`` and the CSV directly.
 
 from __future__ import annotations
 
-import base64
 import csv
 import importlib.util
 import json
@@ -180,7 +179,7 @@ def write_vtp(
     fields: dict[str, np.ndarray],
     precision: str = "double",
 ) -> None:
-    """Write a VTK XML PolyData point cloud (inline binary, base64) readable by ParaView.
+    """Write a VTK XML PolyData point cloud (appended raw binary) readable by ParaView.
 
     Parameters
     ----------
@@ -194,42 +193,44 @@ def write_vtp(
         ``"double"`` (Float64) or ``"single"`` (Float32) for positions and float
         fields; the vertex cells are Int32 (Int64 beyond 2**31 - 1 points).
 
-    Each array is encoded and written on its own (no copy of the whole file is
-    made in memory).
+    The XML header declares every array with its offset into the ``AppendedData``
+    block, which holds each array's byte count (UInt64) and its bytes as they are
+    in memory: nothing is encoded, and no copy of the whole file is made.
     """
     data, pts = _vtp_arrays(points, fields, precision)
     n = pts.shape[0]
     idt = np.int32 if n < 2**31 - 1 else np.int64
+    blocks: list[np.ndarray] = []
 
-    def arr(fh: Any, a: np.ndarray, name: str | None) -> None:
-        raw = a.tobytes()
+    def decl(a: np.ndarray, name: str | None) -> str:
+        offset = sum(8 + b.nbytes for b in blocks)
+        blocks.append(a)
         nm = f' Name="{name}"' if name else ""
-        typ = _VTK_TYPES[a.dtype]
-        fh.write(
-            f'<DataArray type="{typ}"{nm} NumberOfComponents="{_ncomp(a)}" '
-            'format="binary">'.encode()
+        return (
+            f'<DataArray type="{_VTK_TYPES[a.dtype]}"{nm} NumberOfComponents="{_ncomp(a)}" '
+            f'format="appended" offset="{offset}"/>\n'
         )
-        fh.write(base64.b64encode(np.array([len(raw)], dtype=np.uint64).tobytes() + raw))
-        fh.write(b"</DataArray>\n")
 
+    head = (
+        '<?xml version="1.0"?>\n'
+        '<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" '
+        'header_type="UInt64">\n'
+        f'<PolyData><Piece NumberOfPoints="{n}" NumberOfVerts="{n}" NumberOfLines="0" '
+        'NumberOfStrips="0" NumberOfPolys="0">\n<PointData>\n'
+        + "".join(decl(a, name) for name, a in data)
+        + "</PointData>\n<Points>\n"
+        + decl(pts, None)
+        + "</Points>\n<Verts>\n"
+        + decl(np.arange(n, dtype=idt), "connectivity")
+        + decl(np.arange(1, n + 1, dtype=idt), "offsets")
+        + '</Verts>\n</Piece></PolyData>\n<AppendedData encoding="raw">\n_'
+    )
     with open(path, "wb") as fh:
-        fh.write(b'<?xml version="1.0"?>\n')
-        fh.write(
-            b'<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" '
-            b'header_type="UInt64">\n'
-        )
-        fh.write(
-            f'<PolyData><Piece NumberOfPoints="{n}" NumberOfVerts="{n}" NumberOfLines="0" '
-            'NumberOfStrips="0" NumberOfPolys="0">\n<PointData>\n'.encode()
-        )
-        for name, a in data:
-            arr(fh, a, name)
-        fh.write(b"</PointData>\n<Points>\n")
-        arr(fh, pts, None)
-        fh.write(b"</Points>\n<Verts>\n")
-        arr(fh, np.arange(n, dtype=idt), "connectivity")
-        arr(fh, np.arange(1, n + 1, dtype=idt), "offsets")
-        fh.write(b"</Verts>\n</Piece></PolyData>\n</VTKFile>\n")
+        fh.write(head.encode())
+        for a in blocks:
+            fh.write(np.array([a.nbytes], dtype="<u8").tobytes())
+            fh.write(np.ascontiguousarray(a).ravel().view(np.uint8))
+        fh.write(b"\n</AppendedData>\n</VTKFile>\n")
 
 
 def write_pvtp(

@@ -1,5 +1,7 @@
 """Output helpers: particle VTK files, interface polylines."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -26,14 +28,25 @@ def test_chain_segments_open_and_closed():
     assert np.allclose(closed[0], closed[-1])
 
 
-def test_vtp_is_valid_xml(tmp_path):
+def _vtp_parts(path):
+    """The XML tree of a ``.vtp`` file (its appended block emptied) and that block's bytes."""
     import xml.etree.ElementTree as ET
 
+    raw = Path(path).read_bytes()
+    tag = b'<AppendedData encoding="raw">'
+    head, rest = raw.split(tag)
+    start = rest.index(b"_") + 1
+    end = rest.rindex(b"</AppendedData>")
+    tail = b"</AppendedData>" + rest[end + len(b"</AppendedData>") :]
+    return ET.fromstring(head + tag + tail), rest[start:end].rstrip(b"\n")
+
+
+def test_vtp_is_valid_xml(tmp_path):
     p = tmp_path / "p.vtp"
     write_vtp(
         p, np.random.default_rng(1).random((10, 2)), {"T": np.arange(10.0), "u": np.ones((10, 2))}
     )
-    root = ET.parse(p).getroot()
+    root, _ = _vtp_parts(p)
     piece = root.find("PolyData/Piece")
     assert piece.get("NumberOfPoints") == "10"
     names = [a.get("Name") for a in root.iter("DataArray")]
@@ -41,24 +54,45 @@ def test_vtp_is_valid_xml(tmp_path):
 
 
 def _read_vtp(path):
-    """The arrays of a VTK XML PolyData file with inline base64 data, decoded by hand."""
-    import base64
-    import xml.etree.ElementTree as ET
-
+    """The arrays of a VTK XML PolyData file with appended raw data, decoded by hand."""
     types = {"Float32": np.float32, "Float64": np.float64, "Int32": np.int32, "Int64": np.int64}
-    root = ET.parse(path).getroot()
+    root, block = _vtp_parts(path)
     assert root.get("header_type") == "UInt64"
-    out = {}
+    out, end = {}, 0
     for a in root.iter("DataArray"):
-        data = base64.b64decode(a.text)
-        nbytes = int(np.frombuffer(data[:8], dtype=np.uint64)[0])
-        assert nbytes == len(data) - 8
-        vals = np.frombuffer(data[8:], dtype=types[a.get("type")])
+        assert a.get("format") == "appended" and not (a.text or "").strip()
+        at = int(a.get("offset"))
+        assert at == end  # the blocks follow each other in the order declared
+        nbytes = int(np.frombuffer(block[at : at + 8], dtype=np.uint64)[0])
+        end = at + 8 + nbytes
+        vals = np.frombuffer(block[at + 8 : end], dtype=types[a.get("type")])
         out[a.get("Name") or "Points"] = (
             a.get("type"),
             vals.reshape(-1, int(a.get("NumberOfComponents"))),
         )
+    assert end == len(block)
     return out
+
+
+def test_vtk_reads_the_particle_file(tmp_path):
+    """VTK's own XML reader (ParaView's) reads what :func:`write_vtp` wrote."""
+    vtk = pytest.importorskip("vtkmodules.vtkIOXML")
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    rng = np.random.default_rng(4)
+    n = 1000
+    pos, u, label = rng.random((n, 2)), rng.random((n, 2)), np.arange(n, dtype=np.int64)
+    write_vtp(tmp_path / "p.vtp", pos, {"u": u, "phase": u[:, 0], "label": label}, "double")
+    reader = vtk.vtkXMLPolyDataReader()
+    reader.SetFileName(str(tmp_path / "p.vtp"))
+    reader.Update()
+    out = reader.GetOutput()
+    assert out.GetNumberOfPoints() == n and out.GetNumberOfVerts() == n
+    assert np.array_equal(vtk_to_numpy(out.GetPoints().GetData())[:, :2], pos)
+    pd = out.GetPointData()
+    assert np.array_equal(vtk_to_numpy(pd.GetArray("u"))[:, :2], u)
+    assert np.array_equal(vtk_to_numpy(pd.GetArray("phase")), u[:, 0])
+    assert np.array_equal(vtk_to_numpy(pd.GetArray("label")), label)
 
 
 @pytest.mark.parametrize("precision", ["single", "double"])
