@@ -65,23 +65,37 @@ def _parser() -> argparse.ArgumentParser:
 #: environment does not name them: the ob1 messaging layer (no UCX start-up, which a
 #: single process has no use for) and no supporting daemon (no MPI_Comm_spawn). MPI's
 #: start then takes about 0.02 s instead of 0.3 s (docs/BENCHMARKS.md, "MPI's start in a
-#: serial run"). Under ``mpirun`` (or another launcher) nothing is set.
+#: serial run").
 SINGLETON_MPI = {"OMPI_MCA_pml": "ob1", "OMPI_MCA_ess_singleton_isolated": "1"}
+
+#: Open MPI settings of processes that ``mpirun`` started all on one node: the ob1
+#: messaging layer (shared memory between the node's processes) instead of UCX, whose
+#: start-up takes about 0.2 s of every rank's start. Processes spread over several nodes
+#: keep UCX (their network's layer).
+ONE_NODE_MPI = {"OMPI_MCA_pml": "ob1"}
 
 #: environment variables that a launcher sets in the processes it starts
 LAUNCHED = ("OMPI_COMM_WORLD_SIZE", "PMIX_RANK", "PMI_RANK", "PMI_SIZE")
 
 
-def singleton_mpi_defaults(environ: MutableMapping[str, str] | None = None) -> dict[str, str]:
-    """Put :data:`SINGLETON_MPI` into ``environ`` (``os.environ``) unless a launcher started us.
+def quick_mpi_defaults(environ: MutableMapping[str, str] | None = None) -> dict[str, str]:
+    """Put Open MPI's quick-start settings into ``environ`` (``os.environ``).
 
-    Call before MPI is initialised (the first import of ``mpi4py.MPI``); a variable the
-    environment already has is kept. Returns the variables set.
+    :data:`SINGLETON_MPI` without a launcher; :data:`ONE_NODE_MPI` when ``mpirun`` started
+    every process of the run on this node (Open MPI's ``OMPI_COMM_WORLD_LOCAL_SIZE``
+    equals ``OMPI_COMM_WORLD_SIZE``: the same on every process, so all of them choose
+    alike); nothing for other launchers or several nodes. Call before MPI is initialised
+    (the first import of ``mpi4py.MPI``); a variable the environment already has (an
+    ``mpirun --mca`` option included) is kept. Returns the variables set.
     """
     env = os.environ if environ is None else environ
-    if any(k in env for k in LAUNCHED):
+    if not any(k in env for k in LAUNCHED):
+        wanted = SINGLETON_MPI
+    elif env.get("OMPI_COMM_WORLD_LOCAL_SIZE", "") == env.get("OMPI_COMM_WORLD_SIZE"):
+        wanted = ONE_NODE_MPI
+    else:
         return {}
-    new = {k: v for k, v in SINGLETON_MPI.items() if k not in env}
+    new = {k: v for k, v in wanted.items() if k not in env}
     env.update(new)
     return new
 
@@ -98,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
 
         return study_main(args)
     if "mpi4py.MPI" not in sys.modules:
-        singleton_mpi_defaults()
+        quick_mpi_defaults()
     from mpi4py import MPI  # noqa: PLC0415
 
     from pfem2x.scene import SceneError, load_scene  # noqa: PLC0415

@@ -93,16 +93,23 @@ def test_no_overwrite_without_flag_then_overwrite(small_run):
     assert res.returncode == 0, res.stderr
 
 
-def test_singleton_mpi_defaults_only_without_a_launcher():
-    """A serial run gets Open MPI's quick start; a launched one, or a user's choice, is kept."""
-    from pfem2x.cli import SINGLETON_MPI, singleton_mpi_defaults
+def test_quick_mpi_defaults_without_a_launcher_or_on_one_node():
+    """A serial run and an mpirun on one node get Open MPI's quick start; others are kept."""
+    from pfem2x.cli import ONE_NODE_MPI, SINGLETON_MPI, quick_mpi_defaults
 
     env = {"HOME": "/home/u"}
-    assert singleton_mpi_defaults(env) == SINGLETON_MPI
+    assert quick_mpi_defaults(env) == SINGLETON_MPI
     assert env == {"HOME": "/home/u", **SINGLETON_MPI}
-    launched = {"OMPI_COMM_WORLD_SIZE": "2"}
-    assert singleton_mpi_defaults(launched) == {}
-    assert launched == {"OMPI_COMM_WORLD_SIZE": "2"}
+    one_node = {"OMPI_COMM_WORLD_SIZE": "2", "OMPI_COMM_WORLD_LOCAL_SIZE": "2"}
+    assert quick_mpi_defaults(one_node) == ONE_NODE_MPI
+    assert one_node["OMPI_MCA_pml"] == "ob1"
+    nodes = {"OMPI_COMM_WORLD_SIZE": "8", "OMPI_COMM_WORLD_LOCAL_SIZE": "4"}
+    assert quick_mpi_defaults(nodes) == {}
+    assert nodes == {"OMPI_COMM_WORLD_SIZE": "8", "OMPI_COMM_WORLD_LOCAL_SIZE": "4"}
+    other = {"PMI_RANK": "0", "PMI_SIZE": "2"}  # another launcher (e.g. MPICH's, srun)
+    assert quick_mpi_defaults(other) == {} and "OMPI_MCA_pml" not in other
+    chosen = {**one_node, "OMPI_MCA_pml": "ucx"}  # mpirun --mca pml ucx
+    assert quick_mpi_defaults(chosen) == {} and chosen["OMPI_MCA_pml"] == "ucx"
     mine = {"OMPI_MCA_pml": "ucx"}
-    assert singleton_mpi_defaults(mine) == {"OMPI_MCA_ess_singleton_isolated": "1"}
+    assert quick_mpi_defaults(mine) == {"OMPI_MCA_ess_singleton_isolated": "1"}
     assert mine["OMPI_MCA_pml"] == "ucx"
