@@ -144,6 +144,20 @@ def test_pvtp_declares_its_pieces_arrays(tmp_path):
         assert {k: v[0] for k, v in g.items() if k in decl} == decl
         assert np.abs(g["Points"][1][:, :2] - pos).max(initial=0.0) <= 1e-7
         assert np.abs(g["u"][1][:, :2] - u).max(initial=0.0) <= 1e-7
+    try:  # VTK's parallel reader (ParaView's) joins the pieces, the empty one too
+        from vtkmodules.util.numpy_support import vtk_to_numpy
+        from vtkmodules.vtkIOXML import vtkXMLPPolyDataReader
+    except ImportError:
+        return
+    reader = vtkXMLPPolyDataReader()
+    reader.SetFileName(str(tmp_path / "p.pvtp"))
+    reader.Update()
+    out = reader.GetOutput()
+    joined = np.concatenate([pos for pos, _ in pieces])
+    assert out.GetNumberOfPoints() == len(joined) and out.GetNumberOfVerts() == len(joined)
+    assert np.abs(vtk_to_numpy(out.GetPoints().GetData())[:, :2] - joined).max() <= 1e-7
+    u_all = np.concatenate([u for _, u in pieces])
+    assert np.abs(vtk_to_numpy(out.GetPointData().GetArray("u"))[:, :2] - u_all).max() <= 1e-7
 
 
 @pytest.mark.mpi
