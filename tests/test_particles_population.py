@@ -251,3 +251,30 @@ def test_save_with_drop_is_save_then_remove():
             assert np.array_equal(cl.field2d(name), ref[name])
         assert cl.check()
     assert b.save(np.zeros(b.n, dtype=bool))["arrays"]["__x"] is not b._x  # nothing dropped
+
+
+@pytest.mark.mpi
+def test_value_table_rows_the_kernel_reads(comm):
+    """The new particles' values from the table of the rows read equal those of the full table."""
+    from pfem2x.particles import _kernels as K
+    from pfem2x.particles.population import _packed_fields
+
+    d = build_mesh(comm, "rectangle", [[0.0, 0.0], [1.0, 1.0]], [12, 12])
+    cl = Cloud(d, {"T": (), "v": (2,)})
+    rng = np.random.default_rng(5)
+    seed_cells(cl, 6, seed=5)
+    cl.remove(rng.random(cl.n) < 0.4)  # short cells, some empty, all over the mesh
+    cl["T"] = np.sin(3 * cl.x[:, 0]) + cl.x[:, 1] ** 2
+    cl["v"] = rng.random((cl.n, 2))
+    pm = cl.pmesh
+    order, offsets = K.counting_sort(cl.cells, pm.n_cells)
+    plan = K.population_plan(offsets, pm.n_owned, 5, 0, np.zeros(0, dtype=bool))
+    names = cl.field_names
+    full = np.concatenate([cl.field2d(nm) for nm in names], axis=1)
+    rows = _packed_fields(cl, names, order, offsets, plan)
+    args = (order, offsets, plan, pm.keys, np.uint64(7), pm.coords, pm.nbr, True, 8)
+    a = K.population_add(cl.x, full, *args)
+    b = K.population_add(cl.x, rows, *args)
+    added = comm.allreduce(len(a[0]), op=MPI.SUM)
+    same = all(np.array_equal(p, q) for p, q in zip(a, b, strict=True))
+    assert added > 0 and comm.allreduce(same, op=MPI.LAND)
