@@ -203,7 +203,7 @@ def write_vtp(
     blocks: list[np.ndarray] = []
 
     def decl(a: np.ndarray, name: str | None) -> str:
-        offset = sum(8 + b.nbytes for b in blocks)
+        offset = sum(8 + b.nbytes for b in blocks)  # a handful of arrays
         blocks.append(a)
         nm = f' Name="{name}"' if name else ""
         return (
@@ -229,7 +229,7 @@ def write_vtp(
         fh.write(head.encode())
         for a in blocks:
             fh.write(np.array([a.nbytes], dtype="<u8").tobytes())
-            fh.write(np.ascontiguousarray(a).ravel().view(np.uint8))
+            fh.write(a.ravel().view(np.uint8))
         fh.write(b"\n</AppendedData>\n</VTKFile>\n")
 
 

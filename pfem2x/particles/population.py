@@ -145,16 +145,13 @@ def _packed_fields(
         return np.zeros((cloud.n, 0))
     pm = cloud.pmesh
     n_plan = len(plan)
-    need = np.zeros(n_plan, dtype=bool)
-    need[plan > 0] = True
+    need = plan > 0
     nb = pm.nbr[:n_plan][need].ravel()
     need[nb[(nb >= 0) & (nb < n_plan)]] = True
     cells = np.flatnonzero(need)
     starts, counts = offsets[cells], offsets[cells + 1] - offsets[cells]
-    ends = np.cumsum(counts)
-    rows = order[
-        np.repeat(starts - ends + counts, counts) + np.arange(ends[-1] if len(ends) else 0)
-    ]
+    at = np.repeat(starts - np.cumsum(counts) + counts, counts) + np.arange(int(counts.sum()))
+    rows = order[at]
     fields = [cloud.field2d(nm) for nm in names]
     table = np.empty((cloud.n, sum(f.shape[1] for f in fields)))
     o = 0
