@@ -12,7 +12,14 @@ import sys
 
 import pytest
 
-from pfem2x.study import StudyError, pareto_front, parse_vary, run_study, split_values
+from pfem2x.study import (
+    StudyError,
+    pareto_front,
+    parse_axis,
+    parse_vary,
+    run_study,
+    split_values,
+)
 
 QUICK = ["--variant", "small", "--set", "output.png=false", "--set", "output.fields=false"]
 VARY = ["--vary", "time.courant=2,5", "--vary", "method.theta=0.5,1"]
@@ -136,6 +143,12 @@ def test_diverged_variant_is_a_row(tmp_path):
         ("params.omegaa=1,2", "params.omegaa"),
         ("method.frame=eulerian,nope", "method.frame"),
         ("time.courant", "time.courant"),
+        ("time.courant,method.theta=[2]", "time.courant,method.theta"),
+        ("time.courant,method.theta=2,5", "time.courant,method.theta"),
+        ("time.courant,method.theta=[2,0.5],[2,0.5]", "time.courant,method.theta"),
+        ("time.courant,time.courant=[1,2]", "time.courant"),
+        ("time.courant,method.thetaa=[2,0.5]", "method.thetaa"),
+        ("time.courant,method.theta=[2,-1]", "method.theta"),
     ],
 )
 def test_bad_vary(tmp_path, vary, needle):
@@ -146,6 +159,35 @@ def test_bad_vary(tmp_path, vary, needle):
     assert len(lines) == 1 and lines[0].startswith("error:"), res.stderr
     assert needle in lines[0]
     assert not out.exists()
+
+
+def test_keys_varied_together(tmp_path):
+    # One axis of two keys: its points, not their product (2 x 2 runs, not 2 x 4).
+    out = tmp_path / "joint"
+    res = study(
+        "gaussian-hill",
+        *QUICK,
+        "--vary",
+        "time.courant=2,5",
+        "--vary",
+        'method.frame,method.theta=["eulerian",0.5],["lagrangian",1]',
+        "--out",
+        str(out),
+        "--quiet",
+    )
+    assert res.returncode == 0, res.stderr
+    with open(out / "study.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    got = {(r["time.courant"], r["method.frame"], r["method.theta"]) for r in rows}
+    assert got == {
+        ("2", "eulerian", "0.5"),
+        ("2", "lagrangian", "1"),
+        ("5", "eulerian", "0.5"),
+        ("5", "lagrangian", "1"),
+    }
+    assert all(r["status"] == "ok" and r["frame"] == r["method.frame"] for r in rows)
+    info = json.loads((out / "study.json").read_text())
+    assert info["keys"] == ["time.courant", "method.frame", "method.theta"]
 
 
 def test_failed_child_is_a_row(tmp_path):
@@ -199,6 +241,17 @@ def test_split_values():
     key, texts, values = parse_vary("mesh.cells=[8,8],[12,12]")
     assert key == "mesh.cells" and texts == ["[8,8]", "[12,12]"]
     assert values == [[8, 8], [12, 12]]
+    keys, texts, values = parse_axis('mesh.cells,method.frame=[[8,8],"eulerian"],[[12,12],"x"]')
+    assert keys == ["mesh.cells", "method.frame"]
+    assert texts == [
+        {"mesh.cells": "[8,8]", "method.frame": '"eulerian"'},
+        {"mesh.cells": "[12,12]", "method.frame": '"x"'},
+    ]
+    assert values == [
+        {"mesh.cells": [8, 8], "method.frame": "eulerian"},
+        {"mesh.cells": [12, 12], "method.frame": "x"},
+    ]
+    assert parse_axis("time.courant=1,2")[1] == [{"time.courant": "1"}, {"time.courant": "2"}]
 
 
 def test_pareto_front():

@@ -1,7 +1,8 @@
 """Parameter studies: ``pfem2x study`` shows what accuracy costs in time.
 
-A study runs the cartesian product of ``--vary KEY=V1,V2,...`` lists of a scene,
-each variant in its own process (``python -m pfem2x run SCENE --set ... --out
+A study runs the cartesian product of ``--vary KEY=V1,V2,...`` lists of a scene
+(``--vary K1,K2=[a1,b1],[a2,b2]``: keys varied together, one axis), each variant in
+its own process (``python -m pfem2x run SCENE --set ... --out
 DIR/variants/<slug> --quiet --overwrite``), and tabulates, per variant, the
 varied keys, the scene's error metrics (every numeric scalar of the summary's
 ``metrics``), wall and CPU seconds, steps, the child's peak memory, status and
@@ -35,7 +36,14 @@ from pfem2x.study.driver import (
     StudyResult,
     run_study,
 )
-from pfem2x.study.plan import StudyError, Variant, parse_vary, plan_study, split_values
+from pfem2x.study.plan import (
+    StudyError,
+    Variant,
+    parse_axis,
+    parse_vary,
+    plan_study,
+    split_values,
+)
 from pfem2x.study.plots import write_plots
 from pfem2x.study.report import BASE_COLUMNS, write_markdown, write_tables
 from pfem2x.study.rows import DEFAULT_METRICS, choose_metric, pareto_front
@@ -55,6 +63,7 @@ __all__ = [
     "add_study_parser",
     "choose_metric",
     "pareto_front",
+    "parse_axis",
     "parse_vary",
     "plan_study",
     "run_study",

@@ -23,7 +23,9 @@ def add_study_parser(sub: Any) -> argparse.ArgumentParser:
         action="append",
         required=True,
         metavar="KEY=V1,V2,...",
-        help="a key and its values (TOML; commas inside [...] do not split)",
+        help="a key and its values (TOML; commas inside [...] do not split); keys varied "
+        'together: K1,K2=[a1,b1],[a2,b2] (e.g. flow.extra_pass,flow.pressure_step=[false,"total"],'
+        '[true,"increment"])',
     )
     s.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", help="override for every run"

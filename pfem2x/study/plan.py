@@ -1,5 +1,10 @@
 """Study input: ``--vary`` lists, the product of variants, each checked before anything runs.
 
+A ``--vary`` is one axis of the product: one key and its values (``time.courant=1,2,4``)
+or several keys varied together, one list of values per point
+(``flow.extra_pass,flow.pressure_step=[false,"total"],[true,"increment"]``: two points,
+not four), for comparing option sets against the step.
+
 :func:`plan_study` parses the options and loads the scene of every variant with
 :func:`pfem2x.scene.load_scene`, so that bad input is refused (:class:`StudyError`,
 naming the key) before anything is run or written.
@@ -103,14 +108,9 @@ def parse_vary(text: str) -> tuple[str, list[str], list[Any]]:
         raise StudyError(f"--vary {text}: expected KEY=V1,V2,..., e.g. time.courant=1,2,4")
     key, _, vals = text.partition("=")
     key = key.strip()
-    if not key or any(not p.strip() or p != p.strip() for p in key.split(".")):
+    if _bad_key(key):
         raise StudyError(f"--vary {text}: bad key {key!r}")
-    if not vals.strip():
-        raise StudyError(f"--vary {key}: empty value list (expected {key}=V1,V2,...)")
-    try:
-        texts = split_values(vals)
-    except StudyError as exc:
-        raise StudyError(f"--vary {key}: {exc}") from None
+    texts = _value_texts(key, vals, "V1,V2")
     values: list[Any] = []
     for i, v in enumerate(texts):
         if not v:
@@ -123,6 +123,73 @@ def parse_vary(text: str) -> tuple[str, list[str], list[Any]]:
             raise StudyError(f"--vary {key}: value {v} is given twice")
         values.append(value)
     return key, texts, values
+
+
+def _value_texts(name: str, vals: str, expected: str) -> list[str]:
+    """The value texts of ``--vary NAME=VALS`` (:func:`split_values`), none empty-listed."""
+    if not vals.strip():
+        raise StudyError(f"--vary {name}: empty value list (expected {name}={expected},...)")
+    try:
+        return split_values(vals)
+    except StudyError as exc:
+        raise StudyError(f"--vary {name}: {exc}") from None
+
+
+def _bad_key(key: str) -> bool:
+    return not key or any(not p.strip() or p != p.strip() for p in key.split("."))
+
+
+def parse_axis(text: str) -> tuple[list[str], list[dict[str, str]], list[dict[str, Any]]]:
+    """Parse one ``--vary``: a key and its values, or several keys varied together.
+
+    ``KEY=V1,V2,...`` is :func:`parse_vary`. ``K1,K2,...=[a1,b1,...],[a2,b2,...]`` varies
+    the keys together: each point is a TOML list with one value per key, in the keys'
+    order (``flow.extra_pass,flow.pressure_step=[false,"total"],[true,"increment"]``).
+
+    Returns
+    -------
+    tuple
+        The keys, and per point the value texts and the TOML values (key → value).
+
+    Raises
+    ------
+    StudyError
+        Naming the keys: a bad or repeated key, a point that is not a list of one
+        value per key, an unreadable or repeated point.
+    """
+    head, eq, vals = text.partition("=")
+    if not eq or "," not in head:
+        key, texts, values = parse_vary(text)
+        return [key], [{key: t} for t in texts], [{key: v} for v in values]
+    keys = [k.strip() for k in head.split(",")]
+    name = ",".join(keys)
+    for k in keys:
+        if _bad_key(k):
+            raise StudyError(f"--vary {text}: bad key {k!r}")
+    if len(set(keys)) < len(keys):
+        raise StudyError(f"--vary {name}: a key is given twice")
+    example = "[" + ", ".join(f"v{i + 1}" for i in range(len(keys))) + "]"
+    items = _value_texts(name, vals, example)
+    texts: list[dict[str, str]] = []
+    values: list[dict[str, Any]] = []
+    for i, item in enumerate(items):
+        subs = split_values(item[1:-1]) if item.startswith("[") and item.endswith("]") else []
+        if len(subs) != len(keys) or not all(subs):
+            raise StudyError(
+                f"--vary {name}: point {i + 1} ({item or 'empty'}) is not a list of "
+                f"{len(keys)} values, one per key (e.g. {example})"
+            )
+        point: dict[str, Any] = {}
+        for k, sub in zip(keys, subs, strict=True):
+            try:
+                _, point[k] = parse_override(f"{k}={sub}")
+            except SceneError as exc:
+                raise StudyError(str(exc).replace("--set ", "--vary ", 1)) from None
+        if any(all(_same(point[k], q[k]) for k in keys) for q in values):
+            raise StudyError(f"--vary {name}: point {item} is given twice")
+        texts.append(dict(zip(keys, subs, strict=True)))
+        values.append(point)
+    return keys, texts, values
 
 
 def _same(a: Any, b: Any) -> bool:
@@ -161,7 +228,8 @@ def plan_study(
     scene:
         A scene file or built-in scene name.
     vary:
-        ``KEY=V1,V2,...`` strings.
+        ``KEY=V1,V2,...`` strings, or ``K1,K2=[a1,b1],[a2,b2]`` for keys varied
+        together (:func:`parse_axis`).
     sets:
         ``KEY=VALUE`` overrides common to every variant.
     variant:
@@ -182,25 +250,26 @@ def plan_study(
         raise StudyError("--vary: give at least one KEY=V1,V2,...")
     base = load_scene(scene, list(sets), variant)
     set_keys = {".".join(parse_override(s)[0]) for s in sets}
-    axes: list[tuple[str, list[str], list[Any]]] = []
+    axes: list[tuple[list[str], list[dict[str, str]], list[dict[str, Any]]]] = []
     for text in vary:
-        key, texts, values = parse_vary(text)
-        if any(key == k for k, _, _ in axes):
-            raise StudyError(f"--vary {key}: the key is varied twice")
-        if key in set_keys:
-            raise StudyError(f"--vary {key}: the key is also given with --set")
-        parts = key.split(".")
-        if parts[0] == "params" and len(parts) == 2 and parts[1] not in base.params:
-            known = ", ".join(sorted(base.params)) or "none"
-            raise StudyError(f"{key}: unknown parameter of scene {base.name} (has: {known})")
-        if parts[0] == "variants":
-            raise StudyError(f"--vary {key}: use --variant NAME for the scene's variants")
-        axes.append((key, texts, values))
+        keys, texts, values = parse_axis(text)
+        for key in keys:
+            if any(key in ks for ks, _, _ in axes):
+                raise StudyError(f"--vary {key}: the key is varied twice")
+            if key in set_keys:
+                raise StudyError(f"--vary {key}: the key is also given with --set")
+            parts = key.split(".")
+            if parts[0] == "params" and len(parts) == 2 and parts[1] not in base.params:
+                known = ", ".join(sorted(base.params)) or "none"
+                raise StudyError(f"{key}: unknown parameter of scene {base.name} (has: {known})")
+            if parts[0] == "variants":
+                raise StudyError(f"--vary {key}: use --variant NAME for the scene's variants")
+        axes.append((keys, texts, values))
     variants: list[Variant] = []
     seen: set[str] = set()
     for combo in itertools.product(*(range(len(t)) for _, t, _ in axes)):
-        texts = {k: t[i] for (k, t, _), i in zip(axes, combo, strict=True)}
-        values = {k: v[i] for (k, _, v), i in zip(axes, combo, strict=True)}
+        texts = {k: v for (_, t, _), i in zip(axes, combo, strict=True) for k, v in t[i].items()}
+        values = {k: x for (_, _, v), i in zip(axes, combo, strict=True) for k, x in v[i].items()}
         overrides = list(sets) + [f"{k}={v}" for k, v in texts.items()]
         label = ", ".join(f"{k}={v}" for k, v in texts.items())
         try:
