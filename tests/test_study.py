@@ -20,6 +20,7 @@ from pfem2x.study import (
     run_study,
     split_values,
 )
+from pfem2x.study.report import fmt_value
 
 QUICK = ["--variant", "small", "--set", "output.png=false", "--set", "output.fields=false"]
 VARY = ["--vary", "time.courant=2,5", "--vary", "method.theta=0.5,1"]
@@ -188,6 +189,9 @@ def test_keys_varied_together(tmp_path):
     assert all(r["status"] == "ok" and r["frame"] == r["method.frame"] for r in rows)
     info = json.loads((out / "study.json").read_text())
     assert info["keys"] == ["time.courant", "method.frame", "method.theta"]
+    md = (out / "study.md").read_text()  # the axis as given, not as two products
+    assert '- `--vary method.frame,method.theta=["eulerian",0.5],["lagrangian",1]`' in md
+    assert fmt_value(False) == "false" and fmt_value(True) == "true" and fmt_value(0.5) == "0.5"
 
 
 def test_failed_child_is_a_row(tmp_path):

@@ -100,6 +100,7 @@ def run_study(
     base, variants = plan_study(scene, vary, sets, variant)
     out_dir = _study_dir(out, base.name)
     info = _study_info(base, variants, variant, sets, metric, python)
+    info["axes"] = list(vary)  # as given: keys varied together stay one --vary
     rows, todo = _start(out_dir, variants)
 
     say = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))

@@ -6,7 +6,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from pfem2x.study.report import fmt
+from pfem2x.study.report import fmt_value
 from pfem2x.study.rows import pareto_front, plot_value
 
 #: (row, |metric|) pairs of the plotted rows
@@ -51,7 +51,7 @@ def _plot_wall(plt: Any, path: Path, info: dict[str, Any], pts: Points) -> None:
     ax.plot(fx, fy, "o", ms=12, mfc="none", mec="k")
     if len(pts) <= 16:
         for r, y in pts:
-            text = "\n".join(f"{k.split('.')[-1]}={fmt(r[k])}" for k in keys)
+            text = "\n".join(f"{k.split('.')[-1]}={fmt_value(r[k])}" for k in keys)
             ax.annotate(text, (r["wall_seconds"], y), fontsize=6, xytext=(4, 4),
                         textcoords="offset points")  # fmt: skip
     _log_axes(ax, [r["wall_seconds"] for r, _ in pts], [y for _, y in pts])
@@ -70,7 +70,7 @@ def _plot_dt(plt: Any, path: Path, info: dict[str, Any], pts: Points) -> None:
     others = [k for k in info["keys"] if k not in ("time.dt", "time.courant", "method.frame")]
     groups: dict[str, list[tuple[dict, float]]] = {}
     for r, y in pts:
-        label = " ".join([r["frame"]] + [f"{k.split('.')[-1]}={fmt(r[k])}" for k in others])
+        label = " ".join([r["frame"]] + [f"{k.split('.')[-1]}={fmt_value(r[k])}" for k in others])
         groups.setdefault(label, []).append((r, y))
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
     for ax, xkey, xlabel in ((axes[0], "dt", "Δt"), (axes[1], "courant_max", "Courant max")):

@@ -80,6 +80,13 @@ def fmt(v: Any) -> str:
     return str(v)
 
 
+def fmt_value(v: Any) -> str:
+    """A varied key's value in a table or plot label: booleans as TOML writes them."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    return fmt(v)
+
+
 def write_markdown(
     out: Path, info: dict[str, Any], rows: list[dict[str, Any]], plots: list[str]
 ) -> None:
@@ -91,8 +98,8 @@ def write_markdown(
         lines.append(f"- variant: `{info['variant']}`")
     for s in info["sets"]:
         lines.append(f"- `--set {s}`")
-    for k, vals in info["vary"].items():
-        lines.append(f"- `--vary {k}={','.join(vals)}`")
+    axes = info.get("axes") or [f"{k}={','.join(v)}" for k, v in info["vary"].items()]
+    lines += [f"- `--vary {a}`" for a in axes]
     lines += [f"- metric: `{metric}`" if metric else "- metric: none", ""]
     head = [
         *keys,
@@ -109,7 +116,7 @@ def write_markdown(
     ]
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
-        cells = [fmt(r.get(k)) for k in keys] + [
+        cells = [fmt_value(r.get(k)) for k in keys] + [
             r["frame"],
             r["status"],
             fmt(r["metrics"].get(metric)) if metric else "",
