@@ -28,7 +28,7 @@ from types import MappingProxyType
 from typing import Any
 
 from pfem2x.expr import FUNCTIONS, VARIABLES, Expression, ExpressionError
-from pfem2x.scene_layers import Layer, apply_layers, check_frames, flatten
+from pfem2x.scene_layers import Layer, apply_layers, check_frames, flatten, frame_layers
 from pfem2x.scene_reference import schema_markdown
 from pfem2x.scene_schema import (
     BYTES_PER_PARTICLE,
@@ -246,7 +246,8 @@ def load_scene(
         ``KEY=VALUE`` strings (as given to ``--set``).
     variant:
         Apply the scene's ``[variants.NAME]`` table (dotted keys) before ``overrides``
-        and after the ``[frames.FRAME]`` table of the run's frame
+        and after the ``[frames.FRAME]`` table of the run's frame, then the variant's
+        own ``[variants.NAME.frames.FRAME]`` table of that frame
         (:mod:`pfem2x.scene_layers`).
 
     Raises
@@ -265,6 +266,7 @@ def load_scene(
         raise SceneError(f"{path}: not valid TOML ({exc})") from None
     raw = copy.deepcopy(raw)
     vlayer: Layer = []
+    vframes: dict[str, Layer] = {}
     if variant:
         variants = raw.get("variants", {})
         if not isinstance(variants, dict):
@@ -274,7 +276,9 @@ def load_scene(
             raise SceneError(f"--variant {variant}: {path.name} has no such variant (has: {known})")
         if not isinstance(variants[variant], dict):
             raise SceneError(f"variants.{variant}: expected a table of dotted keys")
-        vlayer = flatten(variants[variant], f"variants.{variant}")
+        table = dict(variants[variant])
+        vframes = frame_layers(raw, table.pop("frames", {}), f"variants.{variant}.frames")
+        vlayer = flatten(table, f"variants.{variant}")
     sets: Layer = []
     for ov in overrides or []:
         parts, value = parse_override(ov)
@@ -286,7 +290,7 @@ def load_scene(
         # a table value sets its leaves (as a variant's nested tables do)
         leaves = flatten({".".join(parts): value}, "--set") if isinstance(value, dict) else []
         sets += [(p, v, f"--set {ov}") for p, v, _ in leaves] or [(parts, value, f"--set {ov}")]
-    kept = apply_layers(raw, vlayer, sets)
+    kept = apply_layers(raw, vlayer, sets, vframes)
     scene = validate(raw, source=str(path), base_dir=path.parent)
     scene.frame_keys = tuple(f"{'.'.join(p)} = {toml_value(v)}" for p, v, _ in kept)
     return scene

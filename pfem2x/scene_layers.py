@@ -4,10 +4,13 @@ A scene file may hold, besides its sections, ``[variants.NAME]`` tables (chosen 
 ``--variant NAME``) and ``[frames.FRAME]`` tables (applied when ``method.frame`` is
 ``FRAME``, whichever way it was chosen). Both hold dotted keys
 (``"flow.pressure_step" = "total"``; nested tables are read as their dotted leaves).
-:func:`apply_layers` writes them into the scene's raw dict: first the table of the
-run's frame, then the variant, then ``--set``, each layer over the ones before it, so
-that a variant or a ``--set`` always wins over a frame table. A layer that sets
-exactly one of ``time.dt`` and ``time.courant`` replaces the other.
+A variant may hold frame tables of its own, ``[variants.NAME.frames.FRAME]``: the
+variant's keys for one frame (a large-step variant that each frame runs with its own
+keys). :func:`apply_layers` writes them into the scene's raw dict: first the table of
+the run's frame, then the variant, then the variant's table of the run's frame, then
+``--set``, each layer over the ones before it, so that a variant or a ``--set`` always
+wins over a frame table. A layer that sets exactly one of ``time.dt`` and
+``time.courant`` replaces the other.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from typing import Any
 
 from pfem2x.scene_schema import FRAME_KEYS, SCHEMA, SceneError
 
-__all__ = ["Layer", "apply_layers", "check_frames", "flatten"]
+__all__ = ["Layer", "apply_layers", "check_frames", "flatten", "frame_layers"]
 
 #: One layer: (dotted key as parts, value, where the key was given).
 Layer = list[tuple[list[str], Any, str]]
@@ -66,10 +69,22 @@ def flatten(table: dict[str, Any], where: str) -> Layer:
 def check_frames(raw: dict[str, Any]) -> dict[str, Layer]:
     """The scene's ``[frames.*]`` tables as layers, each key and value checked.
 
+    ``raw`` is the scene as read from TOML (not modified); see :func:`frame_layers`.
+    """
+    return frame_layers(raw, raw.get("frames", {}), "frames")
+
+
+def frame_layers(raw: dict[str, Any], frames: Any, where: str) -> dict[str, Layer]:
+    """Frame tables (``[frames.*]`` or a variant's ``frames``) as layers, each key checked.
+
     Parameters
     ----------
     raw:
-        The scene as read from TOML (not modified).
+        The scene as read from TOML (its physics: which frames read a key).
+    frames:
+        The tables, frame name → table of dotted keys.
+    where:
+        Their name in messages (``"frames"``, ``"variants.NAME.frames"``).
 
     Returns
     -------
@@ -80,22 +95,21 @@ def check_frames(raw: dict[str, Any]) -> dict[str, Layer]:
     ------
     SceneError
         For a frame that ``method.frame`` cannot take, a key outside the schema's
-        sections, a value the key refuses (named ``frames.FRAME.section.key``), or a
-        table that sets ``method.frame`` itself.
+        sections, a value the key refuses (named ``WHERE.FRAME.section.key``), a key
+        that only other frames read, or a table that sets ``method.frame`` itself.
     """
-    frames = raw.get("frames", {})
     if not isinstance(frames, dict):
-        raise SceneError("frames: expected tables [frames.FRAME] of dotted keys")
+        raise SceneError(f"{where}: expected tables [{where}.FRAME] of dotted keys")
     known = SCHEMA["method"]["frame"].check
     out: dict[str, Layer] = {}
     for name, table in frames.items():
         try:
-            known(f"frames.{name}", name)
+            known(f"{where}.{name}", name)
         except SceneError as exc:
             raise SceneError(f"{exc} (a frame table is named by method.frame)") from None
         if not isinstance(table, dict):
-            raise SceneError(f"frames.{name}: expected a table of dotted keys")
-        layer = flatten(table, f"frames.{name}")
+            raise SceneError(f"{where}.{name}: expected a table of dotted keys")
+        layer = flatten(table, f"{where}.{name}")
         for parts, value, where in layer:
             if parts[:2] == ["method", "frame"]:
                 raise SceneError(f"{where}: a frame table cannot choose the frame")
@@ -148,15 +162,24 @@ def _step_keys(layer: Layer) -> set[str]:
     return {p[1] for p, _, _ in layer if len(p) == 2 and p[0] == "time" and p[1] in _STEP}
 
 
-def apply_layers(raw: dict[str, Any], variant: Layer, sets: Layer) -> Layer:
-    """Write the run's frame table, then ``variant``, then ``sets`` into ``raw`` (in place).
+def apply_layers(
+    raw: dict[str, Any],
+    variant: Layer,
+    sets: Layer,
+    variant_frames: dict[str, Layer] | None = None,
+) -> Layer:
+    """Write the run's frame table, ``variant``, its frame table, ``sets`` into ``raw``.
 
     Parameters
     ----------
     raw:
-        The scene as read from TOML; its ``[frames.*]`` tables stay in it.
+        The scene as read from TOML (changed in place); its ``[frames.*]`` tables stay
+        in it.
     variant, sets:
         The layers of ``--variant`` and of ``--set`` (:func:`flatten`).
+    variant_frames:
+        The variant's own frame tables (:func:`frame_layers`); the run's frame's is
+        applied after ``variant``.
 
     Returns
     -------
@@ -172,13 +195,15 @@ def apply_layers(raw: dict[str, Any], variant: Layer, sets: Layer) -> Layer:
     frames = check_frames(raw)
     frame = _frame(raw, [variant, sets])
     chosen = frames.get(frame, []) if isinstance(frame, str) else []
-    for layer in (chosen, variant, sets):
+    own = (variant_frames or {}).get(frame, []) if isinstance(frame, str) else []
+    for layer in (chosen, variant, own, sets):
         step = _step_keys(layer)
         if len(step) == 1 and isinstance(raw.get("time"), dict):
             raw["time"].pop(_STEP[1 - _STEP.index(step.pop())], None)
         for parts, value, where in layer:
             _set_dotted(raw, parts, value, where)
-    later = {tuple(p) for p, _, _ in variant + sets}
-    if _step_keys(variant + sets):
+    after = variant + own + sets
+    later = {tuple(p) for p, _, _ in after}
+    if _step_keys(after):
         later |= {("time", k) for k in _STEP}
     return [e for e in chosen if tuple(e[0]) not in later]

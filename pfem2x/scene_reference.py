@@ -78,10 +78,12 @@ def schema_markdown() -> str:
         "`method.frame` is FRAME, however it was chosen; each key must be one of the sections'",
         "keys above (not `[phases]` or `[params]`) that the frame reads (the table below),",
         "every table's values are checked, and a frame table cannot set `method.frame`.",
-        "`[variants.NAME]`: dotted keys applied by `--variant NAME`. Order: the scene's",
-        "sections, the run's frame table, the variant, then every `--set` (a later layer wins;",
-        "one that sets only one of `time.dt` and `time.courant` replaces the other; a `--set`",
-        "of a table sets its keys). Neither kind of table can be changed by `--set`.",
+        "`[variants.NAME]`: dotted keys applied by `--variant NAME`; a variant's own frame",
+        "tables `[variants.NAME.frames.FRAME]` (checked as the scene's) hold its keys for one",
+        "frame. Order: the scene's sections, the run's frame table, the variant, the variant's",
+        "table of the run's frame, then every `--set` (a later layer wins; one that sets only",
+        "one of `time.dt` and `time.courant` replaces the other; a `--set` of a table sets its",
+        "keys). Neither kind of table can be changed by `--set`.",
         "",
     ]
     return "\n".join(lines + _frames_markdown())

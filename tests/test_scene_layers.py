@@ -93,6 +93,73 @@ flow.rtol = 1e-7
     assert load_scene(p).time.courant == 2.0
 
 
+def test_a_variant_has_frame_tables_of_its_own(tmp_path):
+    p = write(
+        tmp_path,
+        """
+[frames.lagrangian]
+"flow.rtol" = 1e-6
+"flow.predictor_rtol" = 1e-3
+[variants.big]
+"time.courant" = 8.0
+"flow.rtol" = 1e-7
+[variants.big.frames.lagrangian]
+"flow.extra_pass" = true
+"flow.rtol" = 1e-9
+[variants.big.frames.eulerian]
+"time.dt" = 0.05
+""",
+    )
+    # the order: the frame table, the variant, the variant's table of the run's frame, --set
+    sc = load_scene(p, variant="big")
+    assert sc.flow.extra_pass and sc.flow.rtol == 1e-9 and sc.time.courant == 8.0
+    assert sc.frame_keys == ("flow.predictor_rtol = 0.001",)
+    assert load_scene(p, ["flow.rtol=1e-5"], "big").flow.rtol == 1e-5
+    eul = load_scene(p, ["method.frame=eulerian"], "big")
+    assert not eul.flow.extra_pass and eul.flow.rtol == 1e-7
+    assert eul.time.dt == 0.05 and eul.time.courant is None  # its own table's step wins
+    # without the variant none of its tables applies
+    plain = load_scene(p)
+    assert not plain.flow.extra_pass and plain.flow.rtol == 1e-6
+    # the shipped example: each frame runs the rising bubble's large steps with its keys
+    lag = load_scene("rising-bubble", ['method.frame="lagrangian"'], "large-steps")
+    ls = load_scene("rising-bubble", [], "large-steps")
+    assert lag.time.courant == ls.time.courant == 2.0
+    assert lag.flow.capillary_damping == ls.flow.capillary_damping == "normal"
+    assert (lag.flow.extra_pass, lag.flow.pressure_step) == (True, "increment")
+    assert (ls.flow.extra_pass, ls.flow.pressure_step) == (False, "total")
+
+
+@pytest.mark.parametrize(
+    "extra, needles",
+    [
+        (
+            '[variants.v.frames.lagrangain]\n"flow.rtol" = 1e-6\n',
+            ["variants.v.frames.lagrangain", "lagrangian"],
+        ),
+        (
+            '[variants.v.frames.lagrangian]\n"flow.rtoll" = 1e-6\n',
+            ["variants.v.frames.lagrangian.flow.rtoll"],
+        ),
+        (
+            '[variants.v.frames.lagrangian]\n"method.frame" = "eulerian"\n',
+            ["variants.v.frames.lagrangian.method.frame"],
+        ),
+        (
+            '[variants.v.frames.eulerian]\n"flow.pass_pressure" = "consistent"\n',
+            ["variants.v.frames.eulerian.flow.pass_pressure", "read by: lagrangian"],
+        ),
+        ("[variants.v]\nframes = 3\n", ["variants.v.frames"]),
+    ],
+)
+def test_bad_variant_frame_tables(tmp_path, extra, needles):
+    p = write(tmp_path, extra)
+    with pytest.raises(SceneError) as exc:
+        load_scene(p, variant="v")
+    for n in needles:
+        assert n in str(exc.value), (n, str(exc.value))
+
+
 def test_nested_variant_tables_set_only_their_leaves(tmp_path):
     p = write(
         tmp_path, "\n[variants.v.flow]\nrtol = 1e-6\n[variants.v.phases.fluid]\ndensity = 2.0\n"
