@@ -99,8 +99,7 @@ def run_study(
         raise StudyError(f"--jobs: must be >= 1, got {jobs}")
     base, variants = plan_study(scene, vary, sets, variant)
     out_dir = _study_dir(out, base.name)
-    info = _study_info(base, variants, variant, sets, metric, python)
-    info["axes"] = list(vary)  # as given: keys varied together stay one --vary
+    info = _study_info(base, variants, vary, variant, sets, metric, python)
     rows, todo = _start(out_dir, variants)
 
     say = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
@@ -132,6 +131,7 @@ def _study_dir(out: str | os.PathLike | None, name: str) -> Path:
 def _study_info(
     base: Scene,
     variants: Sequence[Variant],
+    vary: Sequence[str],
     variant: str | None,
     sets: Sequence[str],
     metric: str | None,
@@ -145,6 +145,7 @@ def _study_info(
         "variant": variant,
         "sets": list(sets),
         "vary": {k: [] for k in keys},
+        "axes": list(vary),  # the --vary texts: keys varied together stay one axis
         "keys": keys,
         "metric": metric,
         "python": python or sys.executable,

@@ -98,8 +98,7 @@ def write_markdown(
         lines.append(f"- variant: `{info['variant']}`")
     for s in info["sets"]:
         lines.append(f"- `--set {s}`")
-    axes = info.get("axes") or [f"{k}={','.join(v)}" for k, v in info["vary"].items()]
-    lines += [f"- `--vary {a}`" for a in axes]
+    lines += [f"- `--vary {a}`" for a in info["axes"]]
     lines += [f"- metric: `{metric}`" if metric else "- metric: none", ""]
     head = [
         *keys,
