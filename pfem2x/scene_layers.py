@@ -110,16 +110,16 @@ def frame_layers(raw: dict[str, Any], frames: Any, where: str) -> dict[str, Laye
         if not isinstance(table, dict):
             raise SceneError(f"{where}.{name}: expected a table of dotted keys")
         layer = flatten(table, f"{where}.{name}")
-        for parts, value, where in layer:
+        for parts, value, at in layer:
             if parts[:2] == ["method", "frame"]:
-                raise SceneError(f"{where}: a frame table cannot choose the frame")
+                raise SceneError(f"{at}: a frame table cannot choose the frame")
             if len(parts) != 2 or parts[0] not in SCHEMA or parts[1] not in SCHEMA[parts[0]]:
                 raise SceneError(
-                    f"{where}: not a key of the scene's sections (e.g. flow.rtol; "
+                    f"{at}: not a key of the scene's sections (e.g. flow.rtol; "
                     "[phases] and [params] cannot be set per frame)"
                 )
-            SCHEMA[parts[0]][parts[1]].check(where, value)
-            _read_by(raw, name, ".".join(parts), where)
+            SCHEMA[parts[0]][parts[1]].check(at, value)
+            _read_by(raw, name, ".".join(parts), at)
         out[name] = layer
     return out
 

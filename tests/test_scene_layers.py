@@ -204,6 +204,11 @@ def test_resolved_scene_has_the_frame_keys_and_no_tables():
             '[frames.eulerian]\n"flow.pass_pressure" = "consistent"\n',
             ["frames.eulerian.flow.pass_pressure", "read by: lagrangian"],
         ),
+        # a bad key in the second table is named by that table
+        (
+            '[frames.eulerian]\n"flow.rtol" = 1e-6\n[frames.lagrangian]\n"flow.rtoll" = 1e-6\n',
+            ["frames.lagrangian.flow.rtoll"],
+        ),
         ('method = "lagrangian"\n', ["method", "table"]),
         ("variants = 3\n", ["variants"]),
     ],
