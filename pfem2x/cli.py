@@ -136,9 +136,15 @@ def main(argv: list[str] | None = None) -> int:
                 auto = "; auto: " + ", ".join(
                     f"{k} = {json.dumps(v)}" for k, v in solver.auto_keys.items()
                 )
+                plan = f"{steps} steps of dt = {dt:.4g}"
+                if scene.time.adaptive and scene.time.courant is not None:
+                    plan = (
+                        f"first dt = {dt:.4g} ({steps} steps at it), re-evaluated every step "
+                        f"from time.courant = {scene.time.courant:g}"
+                    )
                 print(
                     f"ok: {scene.name} ({scene.physics}, {scene.frame}), "
-                    f"{domain.num_cells_global()} cells, {steps} steps of dt = {dt:.4g}"
+                    f"{domain.num_cells_global()} cells, {plan}"
                     + (taken if scene.frame_keys else "")
                     + (auto if solver.auto_keys else "")
                 )

@@ -116,6 +116,17 @@ def test_good_scene_checks(tmp_path):
     res = cli("check", str(p))
     assert res.returncode == 0, res.stderr
     assert res.stdout.startswith("ok: tiny")
+    assert "steps of dt = " in res.stdout
+
+
+def test_adaptive_scene_check_names_the_courant_number(tmp_path):
+    """``check`` of an adaptive step gives its first dt and the Courant number it follows."""
+    p = tmp_path / "scene.toml"
+    p.write_text(GOOD)
+    res = cli("check", str(p), "--set", "time.courant=2", "--set", "time.adaptive=true")
+    assert res.returncode == 0, res.stderr
+    assert "re-evaluated every step from time.courant = 2" in res.stdout
+    assert "steps of dt" not in res.stdout
 
 
 def test_corrupt_gmsh_file(tmp_path):
