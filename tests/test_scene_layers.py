@@ -125,6 +125,7 @@ def test_a_variant_has_frame_tables_of_its_own(tmp_path):
     lag = load_scene("rising-bubble", ['method.frame="lagrangian"'], "large-steps")
     ls = load_scene("rising-bubble", [], "large-steps")
     assert lag.time.courant == ls.time.courant == 2.0
+    assert lag.time.adaptive and ls.time.adaptive  # the flow's Courant number, every step
     assert lag.flow.capillary_damping == ls.flow.capillary_damping == "normal"
     assert (lag.flow.extra_pass, lag.flow.pressure_step) == (True, "increment")
     assert (ls.flow.extra_pass, ls.flow.pressure_step) == (False, "total")
