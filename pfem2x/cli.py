@@ -125,22 +125,24 @@ def main(argv: list[str] | None = None) -> int:
             raise SceneError("run: give a scene, or --resume DIR")
         scene = load_scene(args.scene, args.set, args.variant)
         # DOLFINx is imported only once the scene is known to be sane.
-        from pfem2x.runner import Simulation, build_domain, make_solver, time_grid  # noqa: PLC0415
+        from pfem2x.runner import Simulation, build_domain, make_solver  # noqa: PLC0415
+        from pfem2x.timestep import make_time_control  # noqa: PLC0415
 
         if args.cmd == "check":
             domain = build_domain(scene, comm)
             solver = make_solver(scene, domain)
-            dt, steps = time_grid(scene, domain, solver)
+            tc = make_time_control(scene, domain, solver)
+            dt, steps = tc.dt, tc.steps
             if comm.rank == 0:
                 taken = f"; [frames.{scene.frame}]: " + ", ".join(scene.frame_keys)
                 auto = "; auto: " + ", ".join(
                     f"{k} = {json.dumps(v)}" for k, v in solver.auto_keys.items()
                 )
                 plan = f"{steps} steps of dt = {dt:.4g}"
-                if scene.time.adaptive and scene.time.courant is not None:
+                if tc.adaptive:
                     plan = (
                         f"first dt = {dt:.4g} ({steps} steps at it), re-evaluated every step "
-                        f"from time.courant = {scene.time.courant:g}"
+                        f"from time.courant = {tc.courant:g}"
                     )
                 print(
                     f"ok: {scene.name} ({scene.physics}, {scene.frame}), "
