@@ -592,6 +592,7 @@ for _dotted, _doc in _DOCS.items():
 #: ``[flow]`` keys read by both flow frames.
 FLOW_COMMON_KEYS = (
     *(f"flow.{k}" for k in ("gravity", "velocity_scale", "initial_velocity", "time_factor")),
+    "flow.inflow_velocity",
     "flow.exact_velocity",
     "flow.exact_pressure",
     "flow.walls",
@@ -637,7 +638,6 @@ FRAME_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
             "flow.reinit_every",
             "flow.volume_correction",
             "flow.quadrature_degree",
-            "flow.inflow_velocity",
         ),
         "lagrangian": (
             *_PARTICLES,

@@ -55,6 +55,14 @@ def test_each_frame_gets_its_own_table():
     assert small.time.courant == 1.0 and small.mesh.cells == (60, 30)
 
 
+def test_both_frames_take_the_inflow_velocity_from_a_frame_table(tmp_path):
+    # PFEM-2 gives it to the particles that enter, the level set to the inflow side's nodes
+    for frame in ("lagrangian", "eulerian"):
+        extra = f'[frames.{frame}]\n"flow.inflow_velocity" = ["2*y*(1 - y)", "0"]\n'
+        sc = load_scene(str(write(tmp_path, extra)), [f"method.frame={frame}"])
+        assert sc.flow.inflow_velocity == ("2*y*(1 - y)", "0")
+
+
 def test_set_and_variant_win_over_the_frame_table(tmp_path):
     p = write(
         tmp_path,
