@@ -339,7 +339,7 @@ class Simulation:
         self.guards.before_step(step, t)
         ts = time.perf_counter()
         dt = lp.dt = tc.next_dt(t, lp.dt, self._vmax)
-        courant = self._vmax * dt / self.h_min
+        v_start = self._vmax
         self.solver.step(t, dt)
         t = tc.advance(step, t, dt)
         self.guards.after_solve(t)
@@ -349,7 +349,8 @@ class Simulation:
         d.update({"step": step, "t": t})
         self.guards.after_step(lp, t, dt, self._vmax, d)
         lp.step, lp.t = step, t
-        lp.courant_max = max(lp.courant_max, courant)
+        # the step's Courant number as run: the larger speed of its start and its end
+        lp.courant_max = max(lp.courant_max, max(v_start, self._vmax) * dt / self.h_min)
         lp.step_wall.append(time.perf_counter() - ts)
         lp.dts.append(dt)
         lp.history.append(d)
@@ -439,9 +440,11 @@ class Simulation:
             self.say(f"warning: summary not written: {err}")
         steps = len(lp.history) - 1
         if status == "ok":
+            lo, hi = (min(lp.dts), max(lp.dts)) if lp.dts else (lp.dt, lp.dt)
+            dts = f"dt = {hi:.4g}" if lo == hi else f"dt = {lo:.4g} to {hi:.4g}"
             self.say(
-                f"done: {steps} steps, dt = {lp.dt:.4g}, "
-                f"Courant max {lp.courant_max:.3g}, {wall:.1f} s -> {out}"
+                f"done: {steps} steps, {dts}, Courant max {lp.courant_max:.3g}, "
+                f"{wall:.1f} s -> {out}"
             )
         elif status == "interrupted":
             self.say(f"error: {message}")
