@@ -14,6 +14,8 @@ import sys
 from collections.abc import MutableMapping
 from pathlib import Path
 
+from pfem2x import __version__
+
 __all__ = ["entry", "main"]
 
 
@@ -35,6 +37,7 @@ class _Parser(argparse.ArgumentParser):
 
 def _parser() -> argparse.ArgumentParser:
     p = _Parser(prog="pfem2x", description="PFEM-2 particle-mesh flow solver on DOLFINx")
+    p.add_argument("--version", action="version", version=f"pfem2x {__version__}")
     sub = p.add_subparsers(dest="cmd", required=True, parser_class=_Parser)
     r = sub.add_parser("run", help="run a scene")
     r.add_argument("scene", nargs="?", help="a scene file (.toml) or a built-in scene name")
@@ -51,9 +54,11 @@ def _parser() -> argparse.ArgumentParser:
         help="continue the interrupted run in DIR from its checkpoint (same number of ranks)",
     )
     c = sub.add_parser("check", help="validate a scene (and build its mesh) without running")
-    c.add_argument("scene")
-    c.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
-    c.add_argument("--variant")
+    c.add_argument("scene", help="a scene file (.toml) or a built-in scene name")
+    c.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", help="override a scene key"
+    )
+    c.add_argument("--variant", help="apply the scene's [variants.NAME] (e.g. small)")
     sub.add_parser("scenes", help="list built-in scenes")
     from pfem2x.study import add_study_parser  # noqa: PLC0415
 

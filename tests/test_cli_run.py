@@ -113,3 +113,21 @@ def test_quick_mpi_defaults_without_a_launcher_or_on_one_node():
     mine = {"OMPI_MCA_pml": "ucx"}
     assert quick_mpi_defaults(mine) == {"OMPI_MCA_ess_singleton_isolated": "1"}
     assert mine["OMPI_MCA_pml"] == "ucx"
+
+
+def test_version_and_check_help():
+    import pfem2x
+
+    res = run("--version")
+    assert res.returncode == 0 and res.stdout.strip() == f"pfem2x {pfem2x.__version__}"
+    helps = {}
+    for cmd in ("run", "check"):
+        res = run(cmd, "--help")
+        assert res.returncode == 0, res.stderr
+        helps[cmd] = " ".join(res.stdout.split())
+    for text in (
+        "scene a scene file (.toml) or a built-in scene name",
+        "--set KEY=VALUE override a scene key",
+        "--variant VARIANT apply the scene's [variants.NAME]",
+    ):
+        assert text in helps["run"] and text in helps["check"], text
