@@ -170,7 +170,9 @@ class Canvas:
     ) -> None:
         """Draw ``vals`` (per cell and vertex, as the coordinates) and save to ``path``."""
         v = np.asarray(vals)
-        lo, hi = (float(v.min()), float(v.max())) if clim is None else clim
+        fin = v[np.isfinite(v)]  # non-finite values stay blank pixels, out of the range
+        lo, hi = (float(fin.min()), float(fin.max())) if fin.size else (0.0, 0.0)
+        lo, hi = (lo, hi) if clim is None else clim
         self.field.set_data(self.raster(v))
         self.field.set_clim(lo, hi)
         self.lines.set_data(*_polyline(segments).T)

@@ -292,8 +292,24 @@ class Simulation:
         with self.solver.timer("output"):
             if status == "ok":
                 self.outputs.finish(lp.step, lp.t, lp.dt)
+            else:
+                self._end_snapshot(status)
             self.outputs.close()
         return self._finish(status, code, message)
+
+    def _end_snapshot(self, status: str) -> None:
+        """After an early stop, the next PNG time not reached, drawn from the state at the end.
+
+        After a divergence that is the last good state (restored by :meth:`_diverged`).
+        A failure to draw (or a second signal while drawing) is a warning: the run's
+        status, message and exit code stand.
+        """
+        lp = self.loop
+        t = lp.t_good if status == "diverged" else lp.t
+        try:
+            self.outputs.snapshots(t, lp.dt, final=True)
+        except (Exception, KeyboardInterrupt) as exc:  # noqa: BLE001 - reported, run continues
+            self.say(f"warning: snapshot at the end not drawn: {str(exc) or type(exc).__name__}")
 
     def _start(self) -> None:
         """The run's state at its first step: new (outputs at t = 0) or from the checkpoint."""

@@ -179,3 +179,69 @@ def test_raster_leaves_pixels_outside_the_mesh_blank():
     j, i = np.divmod(pix, 20)
     assert len(pix) == 300
     assert not np.any((i >= 10) & (j >= 10))
+
+
+def _early_stop(out, png_times, stop_at, how):
+    """The diffusion run of :func:`_diffusion_run` (4 steps of 0.05), stopped after step
+    ``stop_at`` by a divergence (``how = "diverge"``) or by SIGTERM (``"signal"``)."""
+    import os
+    import signal
+
+    from pfem2x.runner import Diverged
+
+    raw = {
+        "scene": {"name": "t"},
+        "mesh": {"kind": "rectangle", "bounds": [[0, 0], [2, 1]], "cells": [8, 4]},
+        "effects": {"diffusion": True},
+        "transport": {"kappa": 0.01, "initial": "sin(pi*x/2)*sin(pi*y)", "boundary_value": 0},
+        "time": {"t_end": 0.2, "dt": 0.05},
+        "output": {"fields": False, "csv": False, "png_times": png_times},
+    }
+    sim = Simulation(validate(raw), out, quiet=True)
+
+    def hook(sim, step, t):
+        if step == stop_at and how == "diverge":
+            raise Diverged(f"T not finite after step {step}")
+        if step == stop_at and how == "signal":
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    sim.on_step = hook
+    return sim.run()
+
+
+def test_a_run_that_stops_early_draws_its_end(tmp_path, no_probe, monkeypatch):
+    """A diverged run draws its last good state, an interrupted one its state at the stop,
+    each named by the time it shows; a failure to draw leaves the run's outcome alone."""
+    res = _early_stop(tmp_path / "d", [0.0, 0.2], 2, "diverge")
+    assert (res.status, res.exit_code) == ("diverged", 3), res.summary["message"]
+    names = sorted(p.name for p in (tmp_path / "d").glob("*.png"))
+    assert names == ["T_t0000.000.png", "T_t0000.100.png"]  # the last good state: t = 0.1
+
+    res = _early_stop(tmp_path / "i", [0.0, 0.2], 3, "signal")
+    assert (res.status, res.exit_code) == ("interrupted", 143)
+    names = sorted(p.name for p in (tmp_path / "i").glob("*.png"))
+    assert names == ["T_t0000.000.png", "T_t0000.150.png"]
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("no canvas")
+
+    monkeypatch.setattr(pio, "png_snapshot", broken)
+    res = _early_stop(tmp_path / "b", [0.2], 2, "diverge")
+    assert (res.status, res.exit_code) == ("diverged", 3)
+    assert json.loads((tmp_path / "b" / "summary.json").read_text())["status"] == "diverged"
+    assert list((tmp_path / "b").glob("*.png")) == []
+
+
+def test_non_finite_values_are_blank_pixels(tmp_path):
+    """A field with NaN and inf is drawn: those pixels blank, the range of the finite values."""
+    import numpy as np
+
+    coords = _triangles(4, 4, jitter=0.0)
+    vals = coords[..., 0].copy()
+    vals[:3] = np.nan
+    vals[3] = np.inf
+    picture.png_2d(tmp_path / "a.png", coords, vals, "t", None, None, "T")
+    assert (tmp_path / "a.png").stat().st_size > 1000
+    assert "[0, 1]" in picture._CANVAS[0].bar.ax.get_ylabel()
+    picture.png_2d(tmp_path / "b.png", coords, np.full_like(vals, np.nan), "t", None, None, "T")
+    assert (tmp_path / "b.png").is_file()
