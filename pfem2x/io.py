@@ -40,12 +40,31 @@ __all__ = [
 ]
 
 
+def _umask() -> int:
+    """The process's file mode creation mask (read without changing it where Linux tells)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)  # elsewhere: set and restore (not atomic across threads)
+    os.umask(mask)
+    return mask
+
+
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    """Write a text file atomically (temporary file in the same folder, then rename)."""
+    """Write a text file atomically (temporary file in the same folder, then rename).
+
+    The file gets the mode of a file made by ``open(path, "w")``: ``0o666`` less the
+    umask (the temporary file alone would keep ``0o600``).
+    """
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
+            os.fchmod(f.fileno(), 0o666 & ~_umask())
             f.write(text)
         os.replace(tmp, path)
     except BaseException:

@@ -1,5 +1,6 @@
 """Output folders: --overwrite replaces only pfem2x folders; default folders stay inside."""
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -102,3 +103,24 @@ def test_study_default_folder_stays_inside_studies(tmp_path, monkeypatch):
             quiet=True,
         )
     assert not (tmp_path / "escape").exists()
+
+
+def test_output_files_honour_the_umask(tmp_path):
+    """Files written atomically (summary, scene, checkpoint) get the mode of ordinary ones."""
+    from pfem2x.io import atomic_write_text
+
+    old = os.umask(0o027)
+    try:
+        atomic_write_text(tmp_path / "a.txt", "x")
+        assert (tmp_path / "a.txt").stat().st_mode & 0o777 == 0o640
+        scene = load_scene(
+            "gaussian-hill", QUICK + ["output.csv=true", "output.checkpoint_every=2"], "small"
+        )
+        out = tmp_path / "run"
+        assert Simulation(scene, out, quiet=True).run().status == "ok"
+    finally:
+        os.umask(old)
+    modes = {str(p.relative_to(out)): p.stat().st_mode & 0o777 for p in out.rglob("*")}
+    for name in ("summary.json", "scene.toml", "diagnostics.csv", "checkpoint/meta.json"):
+        assert name in modes, name
+    assert modes == {k: (0o750 if (out / k).is_dir() else 0o640) for k in modes}
