@@ -38,6 +38,7 @@ __all__ = [
     "LastGood",
     "Outputs",
     "check_default_out",
+    "make_folder",
     "prepare_output",
     "process_start_seconds",
     "removable",
@@ -89,6 +90,34 @@ def check_default_out(path: Path, root: str) -> None:
         )
 
 
+def make_folder(path: Path, marker: str, text: str, what: str = "output folder") -> str:
+    """Create the folder ``path`` (and its parents) and write ``text`` to its ``marker`` file.
+
+    Parameters
+    ----------
+    path:
+        The folder; it may exist.
+    marker:
+        The name of the marker file written into it.
+    text:
+        The marker's content.
+    what:
+        The folder's kind, for the error text.
+
+    Returns
+    -------
+    str
+        ``""`` when done, else the error text naming ``path`` (a parent that is a file,
+        a folder that cannot be created or written, ...).
+    """
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        (path / marker).write_text(text)
+    except OSError as exc:
+        return f"{path}: cannot write {what} ({exc.strerror or exc})"
+    return ""
+
+
 def prepare_output(comm: MPI.Comm, out_dir: Path, overwrite: bool) -> None:
     """Create the output folder and write its marker (collective).
 
@@ -109,8 +138,9 @@ def prepare_output(comm: MPI.Comm, out_dir: Path, overwrite: bool) -> None:
                     if not err:
                         shutil.rmtree(out_dir)
             if not err:
-                out_dir.mkdir(parents=True, exist_ok=True)
-                (out_dir / MARKER).write_text("a pfem2x run folder: --overwrite may replace it\n")
+                err = make_folder(
+                    out_dir, MARKER, "a pfem2x run folder: --overwrite may replace it\n"
+                )
         except OSError as exc:
             err = f"{out_dir}: cannot write output folder ({exc.strerror or exc})"
     err = comm.bcast(err, root=0)

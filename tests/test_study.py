@@ -6,9 +6,11 @@ PNG output so that each variant takes about a second.
 
 import csv
 import json
+import os
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -105,6 +107,42 @@ def test_resume(two_by_two):
     data = json.loads((out / "study.json").read_text())
     assert sum(not r["resumed"] for r in data["rows"]) == 2
     assert all(r["status"] == "ok" for r in data["rows"])
+
+
+def one_error_line(err, *names):
+    lines = [ln for ln in err.strip().splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error:"), err
+    for name in names:
+        assert name in lines[0], (name, lines[0])
+
+
+def test_a_study_of_another_scene_is_refused(two_by_two):
+    """A study folder holds one scene's study: another scene's is refused, nothing touched."""
+    out = two_by_two
+    files = sorted(p for p in out.rglob("*") if p.is_file())
+    before = {p: (p.stat().st_mtime_ns, p.read_bytes()) for p in files}
+    res = study("zalesak", *QUICK, "--vary", "time.courant=2,5", "--out", str(out))
+    assert res.returncode == 2
+    one_error_line(res.stderr, str(out), "gaussian-hill", "zalesak")
+    assert sorted(p for p in out.rglob("*") if p.is_file()) == files
+    assert {p: (p.stat().st_mtime_ns, p.read_bytes()) for p in files} == before
+
+
+def test_tables_honour_the_umask(two_by_two):
+    mask = os.umask(0o022)
+    os.umask(mask)
+    for name in ("study.csv", "study.json", "study.md", "error_vs_wall.png"):
+        assert (two_by_two / name).stat().st_mode & 0o777 == 0o666 & ~mask, name
+
+
+def test_an_out_that_cannot_be_a_folder_is_an_error_line(tmp_path):
+    afile = tmp_path / "afile"
+    afile.write_text("keep")
+    for out in (afile / "sub", Path("/proc/pfem2x-study")):
+        res = study("gaussian-hill", *QUICK, "--vary", "time.courant=2,5", "--out", str(out))
+        assert res.returncode == 2
+        one_error_line(res.stderr, f"--out {out}")
+    assert afile.read_text() == "keep" and sorted(tmp_path.iterdir()) == [afile]
 
 
 def test_diverged_variant_is_a_row(tmp_path):

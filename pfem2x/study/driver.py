@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from pfem2x.io import atomic_write_text
-from pfem2x.output import check_default_out
+from pfem2x.output import check_default_out, make_folder
 from pfem2x.scene import Scene
 from pfem2x.study.children import RUN_RECORD, ChildRunner, is_done, read_json
 from pfem2x.study.plan import StudyError, Variant, plan_study
@@ -39,16 +39,35 @@ class StudyResult:
     ran: int = 0
 
 
-def _check_out_dir(out: Path) -> None:
-    """Refuse a study folder that is a file or a non-empty folder without the study marker."""
-    if out.exists() and not out.is_dir():
-        raise StudyError(f"--out {out}: exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not (out / STUDY_MARKER).is_file():
+def _check_out_dir(out: Path, name: str) -> None:
+    """Refuse a study folder that is a file, a non-empty folder without the study marker,
+    or the study folder of another scene than ``name``."""
+    try:
+        if out.exists() and not out.is_dir():
+            raise StudyError(f"--out {out}: exists and is not a folder")
+        if out.is_dir() and any(out.iterdir()) and not (out / STUDY_MARKER).is_file():
+            raise StudyError(
+                f"--out {out}: a non-empty folder that is not a pfem2x study folder (no "
+                f"{STUDY_MARKER} marker; studies written by older versions have none): "
+                f"use another folder, or remove it by hand"
+            )
+    except OSError as exc:
+        raise StudyError(f"--out {out}: cannot read study folder ({exc.strerror or exc})") from None
+    held = _study_scene(out)
+    if held is not None and held != name:
         raise StudyError(
-            f"--out {out}: a non-empty folder that is not a pfem2x study folder (no "
-            f"{STUDY_MARKER} marker; studies written by older versions have none): "
-            f"use another folder, or remove it by hand"
+            f"--out {out}: holds a study of scene {held!r}, not {name!r}: use another "
+            f"--out, or remove it by hand"
         )
+
+
+def _study_scene(out: Path) -> str | None:
+    """The scene of the study in ``out`` (its marker, else its ``study.json``), or None."""
+    for path in (out / STUDY_MARKER, out / "study.json"):
+        data = read_json(path)
+        if data is not None and isinstance(data.get("scene"), str):
+            return data["scene"]
+    return None
 
 
 def run_study(
@@ -100,7 +119,7 @@ def run_study(
     base, variants = plan_study(scene, vary, sets, variant)
     out_dir = _study_dir(out, base.name)
     info = _study_info(base, variants, vary, variant, sets, metric, python)
-    rows, todo = _start(out_dir, variants)
+    rows, todo = _start(out_dir, variants, base.name)
 
     say = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     n = len(variants)
@@ -124,7 +143,7 @@ def _study_dir(out: str | os.PathLike | None, name: str) -> Path:
         check_default_out(out_dir, "studies")
     else:
         out_dir = Path(out)
-    _check_out_dir(out_dir)
+    _check_out_dir(out_dir, name)
     return out_dir
 
 
@@ -158,12 +177,19 @@ def _study_info(
 
 
 def _start(
-    out_dir: Path, variants: Sequence[Variant]
+    out_dir: Path, variants: Sequence[Variant], name: str
 ) -> tuple[dict[str, dict[str, Any]], list[Variant]]:
-    """Make the study folder; return the rows of the finished variants and the others."""
-    (out_dir / "variants").mkdir(parents=True, exist_ok=True)
-    (out_dir / "logs").mkdir(exist_ok=True)
-    (out_dir / STUDY_MARKER).write_text("a pfem2x study folder\n")
+    """Make the study folder of scene ``name``; return the rows of the finished variants
+    and the others."""
+    marker = json.dumps({"about": "a pfem2x study folder", "scene": name}) + "\n"
+    err = make_folder(out_dir, STUDY_MARKER, marker, "study folder")
+    try:
+        (out_dir / "variants").mkdir(exist_ok=True)
+        (out_dir / "logs").mkdir(exist_ok=True)
+    except OSError as exc:
+        err = err or f"{out_dir}: cannot write study folder ({exc.strerror or exc})"
+    if err:
+        raise StudyError(f"--out {err}")
     rows: dict[str, dict[str, Any]] = {}
     todo: list[Variant] = []
     for v in variants:
