@@ -13,6 +13,8 @@ import hashlib
 import json
 import os
 import shutil
+import zipfile
+import zlib
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -179,6 +181,10 @@ def _publish(out: Path, meta: dict[str, Any], history: list[dict[str, float]]) -
     return ""
 
 
+class _Damaged(Exception):
+    """A checkpoint file that cannot be read (its text names the file)."""
+
+
 def load_checkpoint(comm: MPI.Comm, ck: Path, solver: Solver) -> tuple[list[dict[str, float]], str]:
     """Restore the solver from checkpoint folder ``ck`` (collective).
 
@@ -199,11 +205,17 @@ def load_checkpoint(comm: MPI.Comm, ck: Path, solver: Solver) -> tuple[list[dict
         return [], err
 
     def load(r: int) -> dict[str, np.ndarray]:
-        with np.load(ck / f"rank{r}.npz") as f:
-            return {k: f[k] for k in f.files}
+        path = ck / f"rank{r}.npz"
+        try:
+            with np.load(path) as f:
+                return {k: f[k] for k in f.files}
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+            raise _Damaged(f"{path}: damaged checkpoint file, cannot read it ({exc})") from None
 
     try:
         solver.restore_checkpoint(load(comm.rank), load)
+    except _Damaged as exc:
+        err = str(exc)
     except (ValueError, OSError, KeyError) as exc:
         err = f"{ck}: {exc}"
     return history, _all_ok(comm, err)

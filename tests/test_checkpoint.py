@@ -180,6 +180,25 @@ def test_resume_errors(shared_tmp, capsys):
     assert capsys.readouterr().err.startswith("error: --resume")
 
 
+def test_damaged_checkpoint_file_is_an_error_line(shared_tmp, capsys):
+    """A truncated ``rank0.npz``: one error: line naming it, exit 2, every file kept."""
+    out = shared_tmp / "run"
+    interrupted_run(transport("eulerian"), out, 3)
+    npz = out / "checkpoint" / "rank0.npz"
+    if MPI.COMM_WORLD.rank == 0:
+        npz.write_bytes(npz.read_bytes()[:200])
+    MPI.COMM_WORLD.Barrier()
+    files = {p: p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()}
+    capsys.readouterr()
+    assert cli.main(["run", "--resume", str(out)]) == 2
+    err = capsys.readouterr().err
+    if MPI.COMM_WORLD.rank == 0:
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("error: "), err
+        assert str(npz) in lines[0] and "Traceback" not in err
+    assert {p: p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()} == files
+
+
 # -- real processes: SIGKILL / SIGTERM -------------------------------------------------
 LONG = {
     **TRANSPORT,
