@@ -120,6 +120,7 @@ def main(argv: list[str] | None = None) -> int:
         quick_mpi_defaults()
     from mpi4py import MPI  # noqa: PLC0415
 
+    from pfem2x.expr import ExpressionError  # noqa: PLC0415
     from pfem2x.scene import SceneError, load_scene  # noqa: PLC0415
 
     comm = MPI.COMM_WORLD
@@ -160,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
         sim = Simulation(scene, out, comm, quiet=args.quiet, overwrite=args.overwrite)
         result = sim.run()
         return result.exit_code
-    except SceneError as exc:
+    except (SceneError, ExpressionError) as exc:  # bad input, an expression's key named
         if comm.rank == 0:
             print(f"error: {exc}", file=sys.stderr)
         return 2

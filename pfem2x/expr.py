@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Expression", "ExpressionError", "FUNCTIONS", "VARIABLES"]
+__all__ = ["ARITY", "Expression", "ExpressionError", "FUNCTIONS", "VARIABLES"]
 
 
 class ExpressionError(ValueError):
@@ -61,6 +61,14 @@ FUNCTIONS: dict[str, Callable[..., Any]] = {
     "hypot": np.hypot,
     "mod": np.mod,
 }
+#: Number of arguments of each function of :data:`FUNCTIONS` (the rest take one).
+#: Checked when an expression is compiled: numpy's ufuncs would read a surplus
+#: argument as their output array.
+ARITY: dict[str, int] = {
+    **{name: 2 for name in ("arctan2", "atan2", "minimum", "maximum", "min", "max")},
+    **{name: 2 for name in ("hypot", "mod")},
+    "where": 3,
+}
 #: Names always defined.
 CONSTANTS: dict[str, float] = {"pi": math.pi, "e": math.e}
 #: Coordinate / time variables.
@@ -83,6 +91,9 @@ _CMP = {
     ast.Eq: np.equal,
     ast.NotEq: np.not_equal,
 }
+#: What evaluating a whitelisted tree can raise on user input: Python float arithmetic
+#: (``1/0``, ``9.0**9**9``), a complex power (``(-1)**0.5``) that is not a real number.
+_EVAL_ERRORS = (ArithmeticError, TypeError, ValueError)
 _MAX_LEN = 2000
 _MAX_NODES = 500
 
@@ -247,6 +258,13 @@ class Expression:
             raise self._err(f"the function {name!r}")
         if node.keywords:
             raise self._err("keyword arguments")
+        want = ARITY.get(name, 1)
+        if len(node.args) != want:
+            s = "" if want == 1 else "s"
+            raise ExpressionError(
+                f"{self.where}: {name}() takes {want} argument{s}, "
+                f"got {len(node.args)} in {self.text!r}"
+            )
         fn = FUNCTIONS[name]
         args = [self._compile(a) for a in node.args]
         return lambda env: fn(*(a(env) for a in args))
@@ -267,23 +285,29 @@ class Expression:
             env[name] = x[:, i] if x.shape[1] > i else np.zeros(n)
         with np.errstate(all="ignore"):
             try:
-                val = self._fn(env)
-            except ArithmeticError as exc:  # constant parts are Python floats: 1/0
-                raise ExpressionError(
-                    f"{self.where}: {self.text!r} cannot be evaluated ({exc})"
-                ) from None
-        return np.broadcast_to(np.asarray(val, dtype=float), (n,)).copy()
+                val = self._real(self._fn(env))
+            except _EVAL_ERRORS as exc:
+                raise self._eval_error(exc) from None
+        return np.broadcast_to(val, (n,)).copy()
 
     def value(self) -> float:
         """The value of a constant expression (no x, y, z, t)."""
         if not self.constant:
             raise ExpressionError(f"{self.where}: expected a constant, got {self.text!r}")
         try:
-            return float(self._fn({}))
-        except ArithmeticError as exc:
-            raise ExpressionError(
-                f"{self.where}: {self.text!r} cannot be evaluated ({exc})"
-            ) from None
+            return float(self._real(self._fn({})))
+        except _EVAL_ERRORS as exc:
+            raise self._eval_error(exc) from None
+
+    def _real(self, val: Any) -> np.ndarray:
+        """``val`` as a float array; a complex value (``x + (-1)**0.5``) raises TypeError."""
+        if np.iscomplexobj(val):
+            raise TypeError("a complex number, not a real one")
+        return np.asarray(val, dtype=float)
+
+    def _eval_error(self, exc: Exception) -> ExpressionError:
+        """The :class:`ExpressionError` of an evaluation that raised ``exc``."""
+        return ExpressionError(f"{self.where}: {self.text!r} cannot be evaluated ({exc})")
 
     def __repr__(self) -> str:
         return f"Expression({self.text!r})"

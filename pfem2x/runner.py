@@ -33,6 +33,7 @@ from pfem2x.checkpoint import (
     write_checkpoint,
 )
 from pfem2x.compat import MPI
+from pfem2x.expr import ExpressionError
 from pfem2x.guards import Guards
 from pfem2x.mesh import Domain, MeshError, build_mesh
 from pfem2x.output import particle_arrays, prepare_output
@@ -89,8 +90,15 @@ def build_domain(scene: Scene, comm: MPI.Comm) -> Domain:
 
 
 def make_solver(scene: Scene, domain: Domain) -> Solver:
-    """The solver for the scene's physics and frame (the registry in :mod:`pfem2x.physics`)."""
-    return physics.make_solver(scene, domain)
+    """The solver for the scene's physics and frame (the registry in :mod:`pfem2x.physics`).
+
+    An expression that cannot be evaluated on the mesh at set-up is bad input:
+    :class:`SceneError` naming its key.
+    """
+    try:
+        return physics.make_solver(scene, domain)
+    except ExpressionError as exc:
+        raise SceneError(str(exc)) from None
 
 
 @dataclass

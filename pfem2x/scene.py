@@ -534,6 +534,13 @@ def _check_expressions(scene: Scene) -> None:
     """Compile every expression now, so that bad ones are refused by ``check``."""
     gdim = scene.gdim
     structured = scene.mesh.kind in _DIMS
+
+    def evaluated(*exprs: Expression) -> None:
+        """Evaluate the constant ones (``9.0**9**9`` overflows)."""
+        for e in exprs:
+            if e.constant:
+                e.value()
+
     try:
         if scene.physics == "flow":
             fl = scene.flow
@@ -555,12 +562,14 @@ def _check_expressions(scene: Scene) -> None:
             for k in ("initial_velocity", "inflow_velocity", "exact_velocity"):
                 v = getattr(fl, k)
                 if v is not None:
-                    scene.vector_expr("flow", k, gdim if structured else min(gdim, len(v)))
+                    evaluated(
+                        *scene.vector_expr("flow", k, gdim if structured else min(gdim, len(v)))
+                    )
             if fl.exact_pressure is not None:
-                scene.expr("flow", "exact_pressure")
+                evaluated(scene.expr("flow", "exact_pressure"))
             for name, ph in scene.phases.items():
                 if ph.region is not None:
-                    Expression(ph.region, scene.params, f"phases.{name}.region")
+                    evaluated(Expression(ph.region, scene.params, f"phases.{name}.region"))
             vs = scene.expr("flow", "velocity_scale")
             if scene.time.courant is not None and fl.initial_velocity is None:
                 if not vs.constant or vs.value() <= 0:
@@ -574,9 +583,10 @@ def _check_expressions(scene: Scene) -> None:
             if v is None or k == "field":
                 continue
             if isinstance(v, tuple):
-                scene.vector_expr("transport", k, min(gdim, len(v)))
+                evaluated(*scene.vector_expr("transport", k, min(gdim, len(v))))
             else:
                 e = scene.expr("transport", k)
+                evaluated(e)
                 if k == "kappa" and e.constant and e.value() < 0:
                     raise SceneError(f"transport.kappa: must be >= 0, got {e.value():g}")
         if scene.physics == "transport" and scene.effects.advection:

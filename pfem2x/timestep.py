@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING
 
+from pfem2x.expr import ExpressionError
 from pfem2x.scene import Scene, SceneError
 
 if TYPE_CHECKING:
@@ -29,7 +30,10 @@ def time_grid(scene: Scene, domain: Domain, solver: Solver) -> tuple[float, int]
     t_end = scene.time.t_end
     dt = scene.time.dt
     if dt is None:
-        vmax = solver.max_velocity(0.0)
+        try:
+            vmax = solver.max_velocity(0.0)
+        except ExpressionError as exc:
+            raise SceneError(str(exc)) from None
         if vmax <= 0.0:
             raise SceneError("time.courant: the velocity is zero at t = 0; give time.dt instead")
         dt = scene.time.courant * domain.min_h() / vmax

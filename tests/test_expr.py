@@ -54,3 +54,30 @@ def test_refused(text):
 def test_unknown_name_lists_known_params():
     with pytest.raises(ExpressionError, match="unknown name 'omega'.*kappa"):
         Expression("omega*t", {"kappa": 1.0})
+
+
+@pytest.mark.parametrize(
+    "text, needle",
+    [
+        ("sin(1, 2)", "sin() takes 1 argument, got 2"),
+        ("sin()", "sin() takes 1 argument, got 0"),
+        ("hypot(x)", "hypot() takes 2 arguments, got 1"),
+        ("min(x)", "min() takes 2 arguments, got 1"),
+        ("where(x > 0, 1)", "where() takes 3 arguments, got 2"),
+        ("exp(x, y)", "exp() takes 1 argument, got 2"),
+    ],
+)
+def test_wrong_argument_count_is_refused_when_compiled(text, needle):
+    with pytest.raises(ExpressionError, match=r"^transport\.initial: ") as info:
+        Expression(text, where="transport.initial")
+    assert needle in str(info.value)
+
+
+@pytest.mark.parametrize("text", ["9.0**9**9", "x + 9.0**9**9", "1/(t - 0.5)", "x + (-1)**0.5"])
+def test_evaluation_failure_names_the_key(text):
+    e = Expression(text, where="transport.source")
+    with pytest.raises(ExpressionError, match=r"^transport\.source: .* cannot be evaluated"):
+        e(X, t=0.5)
+    if e.constant:
+        with pytest.raises(ExpressionError, match=r"^transport\.source: "):
+            e.value()

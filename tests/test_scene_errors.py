@@ -245,3 +245,27 @@ def test_safe_scene_names():
     assert load_scene("gaussian-hill", ["scene.name=" + "n" * 100]).name == "n" * 100
     with pytest.raises(SceneError, match="scene.name"):
         load_scene("gaussian-hill", ["scene.name=" + "n" * 101])
+
+
+@pytest.mark.parametrize("cmd", ["check", "run"])
+@pytest.mark.parametrize(
+    "sets, key",
+    [
+        (['transport.initial="sin(1,2)"'], "transport.initial"),
+        (['transport.initial="hypot(x)"'], "transport.initial"),
+        (['transport.initial="min(x)"'], "transport.initial"),
+        (['transport.initial="where(x>0,1)"'], "transport.initial"),
+        (['transport.initial="9.0**9**9"'], "transport.initial"),
+        (['transport.initial="x + 9.0**9**9"'], "transport.initial"),
+        (['transport.velocity=["sin()","0"]'], "transport.velocity[0]"),
+        (['transport.velocity=["y","x + (-1)**0.5"]'], "transport.velocity[1]"),
+    ],
+)
+def test_expression_mistake_is_bad_input(cmd, sets, key, tmp_path):
+    """A wrong argument count or an expression that cannot be evaluated names its key."""
+    out = tmp_path / "out"
+    args = [a for s in sets for a in ("--set", s)]
+    extra = ["--out", str(out), "--quiet"] if cmd == "run" else []
+    res = cli(cmd, "gaussian-hill", "--variant", "small", *args, *extra)
+    assert_one_error(res, key)
+    assert not out.exists()
