@@ -269,3 +269,24 @@ def test_expression_mistake_is_bad_input(cmd, sets, key, tmp_path):
     res = cli(cmd, "gaussian-hill", "--variant", "small", *args, *extra)
     assert_one_error(res, key)
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "sets, key",
+    [
+        (['transport.velocity=["sqrt(x)","0"]'], "transport.velocity"),
+        (['transport.velocity=["y","1e400"]'], "transport.velocity"),
+        (["effects.source=true", 'transport.source="x*9.0**9**9"'], "transport.source"),
+        (["effects.source=true", 'transport.source="log(x)"'], "transport.source"),
+        (['transport.exact="hypot(x)"'], "transport.exact"),
+        (['transport.boundary_value="x + 9.0**9**9"'], "transport.boundary_value"),
+    ],
+)
+def test_setup_field_not_finite(sets, key, tmp_path):
+    """Expressions evaluated at set-up are bad input when not finite, as the initial field."""
+    out = tmp_path / "out"
+    args = [a for s in sets for a in ("--set", s)]
+    assert_one_error(cli("check", "gaussian-hill", "--variant", "small", *args), key)
+    res = cli("run", "gaussian-hill", "--variant", "small", *args, "--out", str(out), "--quiet")
+    assert_one_error(res, key)
+    assert not out.exists()

@@ -154,6 +154,7 @@ class TransportBase(Solver):
         require_finite_input(
             self.comm, "transport.initial", self.T.x.array[:n], self.coords[:n, : domain.gdim]
         )
+        self._require_finite_inputs(n, domain.gdim)
         self.dx = ufl.dx(domain=mesh)
         self._err = compat.dolfinx.fem.Function(self.V)
         self._err_form = compat.form(self._err**2 * self.dx)
@@ -165,6 +166,24 @@ class TransportBase(Solver):
         self._pc: PeriodicConstraint | None = None
         self._substeps_last: tuple[float | None, int] = (None, 0)  # (dt, count) of the last step
         self.case = make_case(scene.scene.case, self)
+
+    def _require_finite_inputs(self, n: int, gdim: int) -> None:
+        """SceneError naming the key of an expression not finite at t = 0 on the owned nodes.
+
+        ExpressionError if one cannot be evaluated there (:func:`~pfem2x.runner.make_solver`
+        makes it a SceneError).
+        """
+        p, x = self.problem, self.coords[:n]
+        if p.velocity is not None:
+            require_finite_input(
+                self.comm, "transport.velocity", p.velocity_at(x, 0.0), x[:, :gdim]
+            )
+        for key in ("kappa", "source", "reaction", "exact"):  # boundary_value: on the sides
+            e = getattr(p, key)
+            if e is not None:
+                require_finite_input(self.comm, f"transport.{key}", e(x, 0.0), x[:, :gdim])
+        if p.boundary_value is not None:  # used on the sides only: evaluated, not checked
+            p.boundary_value(x, 0.0)
 
     # -- helpers shared by the frames ---------------------------------------
     def periodic_constraint(self) -> PeriodicConstraint | None:
