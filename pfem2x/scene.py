@@ -65,6 +65,7 @@ __all__ = [
     "Scene",
     "SceneError",
     "builtin_scenes",
+    "check_components",
     "dump_toml",
     "toml_value",
     "load_scene",
@@ -154,9 +155,8 @@ class Scene:
         v = getattr(getattr(self, section), key)
         if v is None:
             raise SceneError(f"{section}.{key}: required")
-        if len(v) < gdim:
-            raise SceneError(f"{section}.{key}: expected {gdim} components, got {len(v)}")
-        return [Expression(s, self.params, f"{section}.{key}[{i}]") for i, s in enumerate(v[:gdim])]
+        check_components(f"{section}.{key}", v, gdim)
+        return [Expression(s, self.params, f"{section}.{key}[{i}]") for i, s in enumerate(v)]
 
     @property
     def gdim(self) -> int:
@@ -294,6 +294,28 @@ def load_scene(
     scene = validate(raw, source=str(path), base_dir=path.parent)
     scene.frame_keys = tuple(f"{'.'.join(p)} = {toml_value(v)}" for p, v, _ in kept)
     return scene
+
+
+def check_components(key: str, v: Any, gdim: int) -> None:
+    """Refuse a vector-valued key that has not exactly one component per mesh dimension.
+
+    Parameters
+    ----------
+    key
+        The key, as the message names it (``flow.gravity``).
+    v
+        Its value, a list or tuple.
+    gdim
+        The mesh's geometric dimension.
+
+    Raises
+    ------
+    SceneError
+        When ``len(v) != gdim``.
+    """
+    if len(v) != gdim:
+        what = "1 component" if gdim == 1 else f"{gdim} components"
+        raise SceneError(f"{key}: expected {what} (one per mesh dimension), got {len(v)}")
 
 
 def _unknown(key: str, known: list[str], where: str) -> SceneError:
@@ -487,6 +509,8 @@ def _check_flow(s: dict[str, dict[str, Any]]) -> None:
                 )
     if m["kind"] in ("interval", "box"):
         raise SceneError("mesh.kind: flow is available on 2D meshes only (for now)")
+    if fl["gravity"] is not None and m["kind"] in _DIMS:  # a gmsh mesh: FlowProblem checks
+        check_components("flow.gravity", fl["gravity"], _DIMS[m["kind"]])
     if m["periodic"] is not None and any(m["periodic"]):
         raise SceneError("mesh.periodic: periodic flow is not available yet")
     if "inflow" in sides.values() and fl["inflow_velocity"] is None:
@@ -562,9 +586,7 @@ def _check_expressions(scene: Scene) -> None:
             for k in ("initial_velocity", "inflow_velocity", "exact_velocity"):
                 v = getattr(fl, k)
                 if v is not None:
-                    evaluated(
-                        *scene.vector_expr("flow", k, gdim if structured else min(gdim, len(v)))
-                    )
+                    evaluated(*scene.vector_expr("flow", k, gdim if structured else len(v)))
             if fl.exact_pressure is not None:
                 evaluated(scene.expr("flow", "exact_pressure"))
             for name, ph in scene.phases.items():
@@ -583,18 +605,16 @@ def _check_expressions(scene: Scene) -> None:
             if v is None or k == "field":
                 continue
             if isinstance(v, tuple):
-                evaluated(*scene.vector_expr("transport", k, min(gdim, len(v))))
+                evaluated(*scene.vector_expr("transport", k, gdim if structured else len(v)))
             else:
                 e = scene.expr("transport", k)
                 evaluated(e)
                 if k == "kappa" and e.constant and e.value() < 0:
                     raise SceneError(f"transport.kappa: must be >= 0, got {e.value():g}")
         if scene.physics == "transport" and scene.effects.advection:
-            vel = scene.vector_expr("transport", "velocity", min(gdim, len(tr.velocity)))
-            if structured and len(tr.velocity) < gdim:
-                raise SceneError(
-                    f"transport.velocity: expected {gdim} components, got {len(tr.velocity)}"
-                )
+            vel = scene.vector_expr(
+                "transport", "velocity", gdim if structured else len(tr.velocity)
+            )
             if scene.time.courant is not None and all(e.constant and e.value() == 0 for e in vel):
                 raise SceneError(
                     "time.courant: the velocity is zero at t = 0; give time.dt instead"

@@ -290,3 +290,25 @@ def test_setup_field_not_finite(sets, key, tmp_path):
     res = cli("run", "gaussian-hill", "--variant", "small", *args, "--out", str(out), "--quiet")
     assert_one_error(res, key)
     assert not out.exists()
+
+
+@pytest.mark.parametrize("cmd", ["check", "run"])
+@pytest.mark.parametrize(
+    "scene, sets, key, count",
+    [
+        ("two-layer-rest", ["method.frame=eulerian", "flow.gravity=[-9.81]"], "flow.gravity", 2),
+        ("dam-break", ["flow.gravity=[0,-9.81,0]"], "flow.gravity", 2),
+        ("gaussian-hill", ['transport.velocity=["y","1","1"]'], "transport.velocity", 2),
+        ("gaussian-hill", ['transport.velocity=["y"]'], "transport.velocity", 2),
+        ("manufactured-1d", ['transport.velocity=["1","0"]'], "transport.velocity", 1),
+        ("channel", ['flow.inflow_velocity=["1","0","0"]'], "flow.inflow_velocity", 2),
+        ("taylor-green", ['flow.initial_velocity=["1","0","0"]'], "flow.initial_velocity", 2),
+    ],
+)
+def test_vector_key_needs_one_component_per_dimension(cmd, scene, sets, key, count, tmp_path):
+    out = tmp_path / "out"
+    args = [a for s in sets for a in ("--set", s)]
+    extra = ["--out", str(out), "--quiet"] if cmd == "run" else []
+    res = cli(cmd, scene, "--variant", "small", *args, *extra)
+    assert_one_error(res, key, f"expected {count} component")
+    assert not out.exists()

@@ -42,7 +42,7 @@ from pfem2x.physics.flow._kernels import cell_velocity_kernel
 from pfem2x.physics.flow.capillary import capillary_dt_limit
 from pfem2x.physics.flow.exact import ExactFlowError
 from pfem2x.physics.flow.interface import InterfaceGeometry
-from pfem2x.scene import FLOW_SIDES, Scene, SceneError
+from pfem2x.scene import FLOW_SIDES, Scene, SceneError, check_components
 
 __all__ = ["FlowProblem", "FlowSolver"]
 
@@ -94,9 +94,10 @@ class FlowProblem:
         self.phases = phases
         self.two_phase = bool(eff.two_phase)
         g = np.zeros(gdim)
+        if fl.gravity is not None:
+            check_components("flow.gravity", fl.gravity, gdim)
         if eff.gravity:
-            gv = np.asarray(fl.gravity, dtype=float)
-            g[: min(gdim, len(gv))] = gv[:gdim]
+            g[:] = fl.gravity
         self.gravity = g
         self.sides = {s: fl.side(s) for s in FLOW_SIDES[: 2 * gdim]}
         self.initial_velocity = (
