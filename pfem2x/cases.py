@@ -6,8 +6,6 @@ r"""Case diagnostics of the paper's scalar test cases (``scene.case``).
 - ``gaussian-hill``: the peak of the hill over time and a reference peak:
   in the rotating frame the problem is pure diffusion, so the exact peak is
   the initial hill convolved with the heat kernel, evaluated at its centre.
-- ``manufactured-1d``: nothing beyond the exact-solution error that
-  :class:`~pfem2x.physics.transport.TransportBase` always reports.
 - ``dam-break`` (flow): surge front and residual column height of a
   collapsing column in Martin & Moyce's (1952) units, with their data
   (:data:`MARTIN_MOYCE_FRONT`, :data:`MARTIN_MOYCE_HEIGHT`).
@@ -18,6 +16,12 @@ r"""Case diagnostics of the paper's scalar test cases (``scene.case``).
   values (:data:`HYSING_BUBBLE`).
 - ``static-drop`` (flow): the pressure jump across a drop at rest against
   Laplace's :math:`\sigma/R` and the spurious currents.
+
+A scene without case diagnostics (``manufactured-1d``) leaves ``scene.case``
+empty: the exact-solution error that
+:class:`~pfem2x.physics.transport.TransportBase` reports whenever
+``transport.exact`` is given is its metric. The names are also listed in
+:data:`pfem2x.scene_schema.CASES`, which validates ``scene.case``.
 """
 
 from __future__ import annotations
@@ -604,6 +608,6 @@ _CASES = {
 
 
 def make_case(name: str, solver: Any) -> Case:
-    """The case hook named by ``scene.case`` (a no-op :class:`Case` for other names)."""
+    """The case hook named by ``scene.case`` (a no-op :class:`Case` for ``""``)."""
     cls = _CASES.get(name)
     return cls(solver) if cls is not None else Case()

@@ -37,6 +37,7 @@ def _kind(check: Callable[[str, Any], Any]) -> str:
         "cells_check": "integer or list of integers",
         "times_check": "list of times",
         "scene_name": "string (folder name)",
+        "case_name": "string (case name)",
     }
     return names.get(base, base or "value")
 

@@ -134,6 +134,31 @@ def choice(*options: str) -> Callable[[str, Any], str]:
     return check
 
 
+#: The built-in case diagnostics ``scene.case`` can name: the keys of
+#: :data:`pfem2x.cases._CASES` (a test keeps them equal), listed here so that
+#: validating a scene does not import the diagnostics.
+CASES = (
+    "dam-break",
+    "gaussian-hill",
+    "rayleigh-taylor",
+    "rising-bubble",
+    "static-drop",
+    "zalesak",
+)
+
+
+def case_name(key: str, v: Any) -> str:
+    """``""`` (no case diagnostics) or one of :data:`CASES`."""
+    string(key, v)
+    if v and v not in CASES:
+        near = difflib.get_close_matches(v, CASES, n=1)
+        hint = f" (did you mean {near[0]!r}?)" if near else ""
+        raise SceneError(
+            f'{key}: {v!r} is not a built-in case{hint}; known: {", ".join(CASES)} (or "" for none)'
+        )
+    return v
+
+
 def expr_text(key: str, v: Any) -> str | float:
     """An expression string or a number (compiled later, once params are known)."""
     if isinstance(v, bool) or not isinstance(v, str | int | float):
@@ -229,7 +254,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
         ),
         "description": Key(string, "", doc="one line shown by `pfem2x scenes`"),
         "physics": Key(choice("transport", "flow"), "transport", doc="which equations"),
-        "case": Key(string, "", doc="built-in case diagnostics (e.g. zalesak, manufactured-1d)"),
+        "case": Key(
+            case_name,
+            "",
+            doc="built-in case diagnostics: " + ", ".join(CASES) + ' ("": none)',
+        ),
     },
     "mesh": {
         "kind": Key(choice("interval", "rectangle", "box", "gmsh"), required=True),

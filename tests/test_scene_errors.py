@@ -312,3 +312,16 @@ def test_vector_key_needs_one_component_per_dimension(cmd, scene, sets, key, cou
     res = cli(cmd, scene, "--variant", "small", *args, *extra)
     assert_one_error(res, key, f"expected {count} component")
     assert not out.exists()
+
+
+@pytest.mark.parametrize("case", ['"nosuch"', '"gausian-hill"', '"manufactured-1d"'])
+def test_unknown_case_lists_the_known_ones(case):
+    res = cli("check", "gaussian-hill", "--variant", "small", "--set", f"scene.case={case}")
+    assert_one_error(res, "scene.case", case.strip('"'), "dam-break, gaussian-hill")
+
+
+def test_known_cases_are_the_registered_ones():
+    from pfem2x.cases import _CASES
+    from pfem2x.scene_schema import CASES
+
+    assert set(CASES) == set(_CASES)
