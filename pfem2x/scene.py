@@ -28,7 +28,14 @@ from types import MappingProxyType
 from typing import Any
 
 from pfem2x.expr import FUNCTIONS, VARIABLES, Expression, ExpressionError
-from pfem2x.scene_layers import Layer, apply_layers, check_frames, flatten, frame_layers
+from pfem2x.scene_layers import (
+    Layer,
+    apply_layers,
+    check_frames,
+    check_variants,
+    flatten,
+    frame_layers,
+)
 from pfem2x.scene_reference import schema_markdown
 from pfem2x.scene_schema import (
     BYTES_PER_PARTICLE,
@@ -327,8 +334,8 @@ def _unknown(key: str, known: list[str], where: str) -> SceneError:
 def validate(raw: dict[str, Any], source: str = "<scene>", base_dir: Path | None = None) -> Scene:
     """Validate a raw scene dict into a :class:`Scene` (``raw`` is not modified).
 
-    ``[frames.*]`` and ``[variants.*]`` tables are checked, not applied: :func:`load_scene`
-    applies them.
+    ``[frames.*]`` and every ``[variants.*]`` table are checked, not applied:
+    :func:`load_scene` applies them.
 
     Raises
     ------
@@ -343,6 +350,7 @@ def validate(raw: dict[str, Any], source: str = "<scene>", base_dir: Path | None
         if sec in raw and not isinstance(raw[sec], dict):
             raise SceneError(f"{sec}: expected a table [{sec}], got {_type_name(raw[sec])}")
     check_frames(raw)
+    check_variants(raw)
     params = _validate_params(raw.get("params", {}))
     sections: dict[str, dict[str, Any]] = {}
     for sec, keys in SCHEMA.items():

@@ -15,11 +15,12 @@ wins over a frame table. A layer that sets exactly one of ``time.dt`` and
 
 from __future__ import annotations
 
+import difflib
 from typing import Any
 
-from pfem2x.scene_schema import FRAME_KEYS, SCHEMA, SceneError
+from pfem2x.scene_schema import FRAME_KEYS, PHASE_KEYS, SCHEMA, SceneError
 
-__all__ = ["Layer", "apply_layers", "check_frames", "flatten", "frame_layers"]
+__all__ = ["Layer", "apply_layers", "check_frames", "check_variants", "flatten", "frame_layers"]
 
 #: One layer: (dotted key as parts, value, where the key was given).
 Layer = list[tuple[list[str], Any, str]]
@@ -72,6 +73,62 @@ def check_frames(raw: dict[str, Any]) -> dict[str, Layer]:
     ``raw`` is the scene as read from TOML (not modified); see :func:`frame_layers`.
     """
     return frame_layers(raw, raw.get("frames", {}), "frames")
+
+
+def check_variants(raw: dict[str, Any]) -> None:
+    """Check every ``[variants.NAME]`` table of a scene, whichever variant a run takes.
+
+    Each key must be a key of the scene's sections (its value checked as there), a
+    ``params.NAME`` or a ``phases.NAME.KEY``; the variant's own frame tables are
+    checked as :func:`frame_layers` checks them. ``raw`` is not modified.
+
+    Parameters
+    ----------
+    raw
+        The scene as read from TOML.
+
+    Raises
+    ------
+    SceneError
+        Naming the first bad key (``variants.NAME.section.key``), including keys
+        that would write into ``[variants]`` or ``[frames]``.
+    """
+    variants = raw.get("variants", {})
+    if not isinstance(variants, dict):
+        raise SceneError("variants: expected tables [variants.NAME] of dotted keys")
+    for name, table in variants.items():
+        where = f"variants.{name}"
+        if not isinstance(table, dict):
+            raise SceneError(f"{where}: expected a table of dotted keys")
+        table = dict(table)
+        frame_layers(raw, table.pop("frames", {}), f"{where}.frames")
+        for parts, value, at in flatten(table, where):
+            _check_variant_key(parts, value, at, where)
+
+
+def _check_variant_key(parts: list[str], value: Any, at: str, where: str) -> None:
+    """Refuse one key of a variant that no scene section, param or phase has."""
+    sec = parts[0]
+    if sec in ("frames", "variants"):
+        raise SceneError(
+            f"{at}: a variant cannot set [{sec}] tables (a variant's frame tables are "
+            f"[{where}.frames.FRAME])"
+        )
+    if sec in SCHEMA and len(parts) == 2:
+        if parts[1] not in SCHEMA[sec]:
+            near = difflib.get_close_matches(parts[1], list(SCHEMA[sec]), n=1, cutoff=0.5)
+            hint = f" (did you mean {where}.{sec}.{near[0]}?)" if near else ""
+            raise SceneError(f"{at}: unknown key{hint}")
+        SCHEMA[sec][parts[1]].check(at, value)
+        return
+    if sec == "params" and len(parts) == 2:
+        return  # checked with the scene's params
+    if sec == "phases" and len(parts) == 3 and parts[2] in PHASE_KEYS:
+        return
+    raise SceneError(
+        f"{at}: not a key of the scene (section.key, params.NAME or phases.NAME.KEY; "
+        f"phase keys: {', '.join(PHASE_KEYS)})"
+    )
 
 
 def frame_layers(raw: dict[str, Any], frames: Any, where: str) -> dict[str, Layer]:

@@ -293,3 +293,47 @@ def test_set_of_a_table_sets_its_leaves_and_frames_are_not_set():
     for bad in ("frames.lagrangian.flow.rtol=1e-3", "variants.small.mesh.cells=[4,2]"):
         with pytest.raises(SceneError, match="read from the scene file only"):
             load_scene("dam-break", [bad])
+
+
+@pytest.mark.parametrize(
+    "extra, needles",
+    [
+        ('[variants.small]\n"mesh.nosuch" = 1\n', ["variants.small.mesh.nosuch", "unknown key"]),
+        ('[variants.small]\n"flow.rtoll" = 1e-6\n', ["variants.small.flow.rtoll", "flow.rtol"]),
+        ('[variants.small]\n"time.dt" = -1\n', ["variants.small.time.dt"]),
+        ('[variants.small]\n"variants.x" = 3\n', ["variants.small.variants.x"]),
+        ('[variants.small]\n"frames.eulerian" = 3\n', ["variants.small.frames.eulerian"]),
+        ('[variants.small]\n"mesch.cells" = [2, 2]\n', ["variants.small.mesch.cells"]),
+        ('[variants.small]\n"phases.fluid.densty" = 2.0\n', ["variants.small.phases.fluid"]),
+        ("[variants]\nsmall = 3\n", ["variants.small"]),
+        (
+            '[variants.small.frames.lagrangian]\n"flow.rtoll" = 1e-6\n',
+            ["variants.small.frames.lagrangian.flow.rtoll"],
+        ),
+    ],
+)
+def test_check_checks_every_variant(tmp_path, extra, needles):
+    """A bad key of any variant is refused by check, with or without --variant."""
+    p = write(tmp_path, "\n" + extra)
+    with pytest.raises(SceneError) as exc:
+        load_scene(p)
+    for n in needles:
+        assert n in str(exc.value), (n, str(exc.value))
+    res = subprocess.run(
+        [sys.executable, "-m", "pfem2x", "check", str(p)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    assert res.stderr.startswith("error: ") and needles[0] in res.stderr
+    assert "Traceback" not in res.stderr
+
+
+def test_shipped_scenes_and_their_variants_pass_check():
+    from pfem2x.scene import builtin_scenes
+
+    for name, path in builtin_scenes().items():
+        load_scene(name)
+        for variant in tomllib.loads(path.read_text()).get("variants", {}):
+            load_scene(name, variant=variant)
