@@ -1,7 +1,8 @@
 """Command line: ``pfem2x run | check | scenes | study``.
 
 Exit codes: 0 ok, 2 bad input (one ``error:`` line on stderr naming the key
-or file), 3 the simulation diverged, 130 / 143 interrupted by SIGINT / SIGTERM
+or file), 3 the simulation diverged (or one of the scene's expressions could not be
+evaluated at a later time), 130 / 143 interrupted by SIGINT / SIGTERM
 (after writing a checkpoint; continue with ``pfem2x run --resume DIR``).
 """
 

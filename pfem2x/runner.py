@@ -294,6 +294,8 @@ class Simulation:
                     break
         except FloatingPointError as exc:  # Diverged, or a linear solver that diverged
             status, code, message = self._diverged(exc)
+        except ExpressionError as exc:  # a scene expression failed at a later time: 1/(t - 1)
+            status, code, message = self._diverged(exc)
         finally:
             if bar is not None:
                 bar.close()

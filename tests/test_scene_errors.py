@@ -325,3 +325,21 @@ def test_known_cases_are_the_registered_ones():
     from pfem2x.scene_schema import CASES
 
     assert set(CASES) == set(_CASES)
+
+
+@pytest.mark.parametrize("frame", ["eulerian", "characteristic"])
+def test_expression_failing_during_the_run_ends_it_as_diverged(frame, tmp_path):
+    """A source that cannot be evaluated at t = 0.5 ends the run as a divergence does."""
+    import json
+
+    out = tmp_path / "out"
+    res = cli(
+        "run", "gaussian-hill", "--variant", "small", "--set", f"method.frame={frame}",
+        "--set", "effects.source=true", "--set", 'transport.source="1/(t-0.5)"',
+        "--out", str(out), "--quiet",
+    )  # fmt: skip
+    assert res.returncode == 3, res.stderr
+    assert "Traceback" not in res.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "diverged"
+    assert "transport.source" in summary["message"] and "1/(t-0.5)" in summary["message"]
