@@ -16,12 +16,12 @@ r"""Case diagnostics of the paper's scalar test cases (``scene.case``).
   values (:data:`HYSING_BUBBLE`).
 - ``static-drop`` (flow): the pressure jump across a drop at rest against
   Laplace's :math:`\sigma/R` and the spurious currents.
+- ``manufactured-1d``: nothing beyond the exact-solution error that
+  :class:`~pfem2x.physics.transport.TransportBase` reports whenever
+  ``transport.exact`` is given (no case object).
 
-A scene without case diagnostics (``manufactured-1d``) leaves ``scene.case``
-empty: the exact-solution error that
-:class:`~pfem2x.physics.transport.TransportBase` reports whenever
-``transport.exact`` is given is its metric. The names are also listed in
-:data:`pfem2x.scene_schema.CASES`, which validates ``scene.case``.
+The names are also listed in :data:`pfem2x.scene_schema.CASES`, which validates
+``scene.case``.
 """
 
 from __future__ import annotations
