@@ -193,6 +193,11 @@ def partition_check(key: str, v: Any) -> str | list[int]:
     return list_of(integer(1, 100_000), 2, 2)(key, v)
 
 
+#: The smallest extent of ``mesh.bounds`` in any direction (DOLFINx refuses a box whose
+#: width is below the double precision epsilon).
+_MIN_EXTENT = 2.3e-16
+
+
 def bounds_check(key: str, v: Any) -> list[list[float]]:
     """``[lo, hi]`` corners: numbers (interval) or equal-length lists of numbers."""
     if not isinstance(v, list) or len(v) != 2:
@@ -205,6 +210,11 @@ def bounds_check(key: str, v: Any) -> list[list[float]]:
         raise SceneError(f"{key}: lo and hi have different lengths")
     if any(hi <= lo for lo, hi in zip(out[0], out[1], strict=True)):
         raise SceneError(f"{key}: every hi must exceed its lo, got {v!r}")
+    # the mesh generator takes no extent below the double precision epsilon
+    if any(hi - lo < _MIN_EXTENT for lo, hi in zip(out[0], out[1], strict=True)):
+        raise SceneError(
+            f"{key}: an extent below {_MIN_EXTENT:g}, got {v!r}: scale the problem's units"
+        )
     return out
 
 

@@ -37,9 +37,13 @@ def time_grid(scene: Scene, domain: Domain, solver: Solver) -> tuple[float, int]
         if vmax <= 0.0:
             raise SceneError("time.courant: the velocity is zero at t = 0; give time.dt instead")
         dt = scene.time.courant * domain.min_h() / vmax
-    steps = max(1, math.ceil(t_end / dt - 1e-9))
-    if steps > scene.time.max_steps:
-        raise SceneError(f"time: {steps} steps exceed time.max_steps = {scene.time.max_steps}")
+    n = t_end / dt
+    if not n <= scene.time.max_steps:  # (compared as a float: a tiny step gives 1e300 steps)
+        key = "time.dt" if scene.time.dt is not None else "time.courant"
+        raise SceneError(
+            f"{key}: {n:.3g} steps to time.t_end exceed time.max_steps = {scene.time.max_steps}"
+        )
+    steps = max(1, math.ceil(n - 1e-9))
     return t_end / steps, steps
 
 

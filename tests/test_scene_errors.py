@@ -344,3 +344,16 @@ def test_expression_failing_during_the_run_ends_it_as_diverged(frame, tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "diverged"
     assert "transport.source" in summary["message"] and "1/(t-0.5)" in summary["message"]
+
+
+def test_a_tiny_courant_number_names_it_and_the_step_count_in_short():
+    res = cli("check", "gaussian-hill", "--variant", "small", "--set", "time.courant=1e-300")
+    assert_one_error(res, "time.courant", "e+", "time.max_steps")
+    assert len(res.stderr) < 200, res.stderr
+
+
+def test_bounds_below_the_mesh_generators_precision_are_refused():
+    res = cli(
+        "check", "gaussian-hill", "--variant", "small", "--set", "mesh.bounds=[[0,0],[1e-300,1]]"
+    )
+    assert_one_error(res, "mesh.bounds", "extent")
