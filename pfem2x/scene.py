@@ -36,6 +36,7 @@ from pfem2x.scene_layers import (
     flatten,
     frame_layers,
 )
+from pfem2x.scene_readers import PHYSICS_EFFECTS
 from pfem2x.scene_reference import schema_markdown
 from pfem2x.scene_schema import (
     BYTES_PER_PARTICLE,
@@ -461,7 +462,15 @@ def _check_consistency(s: dict[str, dict[str, Any]], base_dir: Path) -> int | No
                 f"{meth['particles_per_cell']} particles would need ~{need / 1024**3:.0f} GiB "
                 f"(limit {MAX_PARTICLE_BYTES / 1024**3:.0f} GiB)"
             )
-    if s["scene"]["physics"] == "transport":
+    physics = s["scene"]["physics"]
+    for name, on in eff.items():
+        if on and name not in PHYSICS_EFFECTS[physics]:
+            other = next(p for p, names in PHYSICS_EFFECTS.items() if name in names)
+            raise SceneError(
+                f"effects.{name}: an effect of {other} scenes, not of this {physics} scene "
+                f"(its effects: {', '.join(PHYSICS_EFFECTS[physics])})"
+            )
+    if physics == "transport":
         if eff["advection"] and s["transport"]["velocity"] is None:
             raise SceneError("transport.velocity: required when effects.advection = true")
         if t["courant"] is not None and not eff["advection"]:

@@ -18,7 +18,8 @@ from __future__ import annotations
 import difflib
 from typing import Any
 
-from pfem2x.scene_schema import FRAME_KEYS, PHASE_KEYS, SCHEMA, SceneError
+from pfem2x.scene_readers import FRAME_KEYS
+from pfem2x.scene_schema import PHASE_KEYS, SCHEMA, SceneError
 
 __all__ = ["Layer", "apply_layers", "check_frames", "check_variants", "flatten", "frame_layers"]
 

@@ -1,7 +1,7 @@
 """The scene reference: docs/SCENES.md rendered from :data:`pfem2x.scene_schema.SCHEMA`.
 
 Each key's type is read from its checker, its default and doc line from the
-:class:`~pfem2x.scene_schema.Key`; :data:`~pfem2x.scene_schema.FRAME_KEYS` gives the table
+:class:`~pfem2x.scene_schema.Key`; :data:`~pfem2x.scene_readers.FRAME_KEYS` gives the table
 of which frame reads which numerical switch. ``python -m pfem2x.scene`` prints it.
 """
 
@@ -10,7 +10,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from pfem2x.scene_schema import FLOW_COMMON_KEYS, FRAME_KEYS, SCHEMA
+from pfem2x.scene_readers import FLOW_COMMON_KEYS, FRAME_KEYS
+from pfem2x.scene_schema import SCHEMA
 
 __all__ = ["schema_markdown"]
 

@@ -1,9 +1,9 @@
 """The scene schema: key checkers and the table of allowed keys.
 
 Every ``[section].key`` of a scene is a :class:`Key` in :data:`SCHEMA` (checker,
-default, doc line), with :data:`FRAME_KEYS` telling which frame reads which numerical
-switch. :mod:`pfem2x.scene` validates scenes against it; :mod:`pfem2x.scene_reference`
-renders it as docs/SCENES.md.
+default, doc line), with :data:`pfem2x.scene_readers.FRAME_KEYS` telling which frame
+reads which numerical switch. :mod:`pfem2x.scene` validates scenes against it;
+:mod:`pfem2x.scene_reference` renders it as docs/SCENES.md.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["FRAME_KEYS", "SCHEMA", "Key", "SceneError", "scene_name"]
+__all__ = ["SCHEMA", "Key", "SceneError", "scene_name"]
 
 
 #: Refuse scenes whose particle cloud alone would need more than this (bytes).
@@ -628,81 +628,6 @@ for _dotted, _doc in _DOCS.items():
         SCHEMA[_sec][_key] = Key(
             SCHEMA[_sec][_key].check, SCHEMA[_sec][_key].default, SCHEMA[_sec][_key].required, _doc
         )
-
-#: ``[flow]`` keys read by both flow frames.
-FLOW_COMMON_KEYS = (
-    *(f"flow.{k}" for k in ("gravity", "velocity_scale", "initial_velocity", "time_factor")),
-    "flow.inflow_velocity",
-    "flow.exact_velocity",
-    "flow.exact_pressure",
-    "flow.walls",
-    *(f"flow.{s}" for s in FLOW_SIDES),
-    *(f"flow.{k}" for k in ("max_speed", "pressure_step", "correction", "rtol")),
-    "flow.divergence_rtol",
-    "flow.surface_tension",
-    "flow.capillary_increment",
-    "flow.capillary_damping",
-)
-_PARTICLES = (
-    "method.particles_per_cell",
-    "method.min_particles_per_cell",
-    "method.max_particles_per_cell",
-    "method.projection",
-    "method.substep_courant",
-    "method.substep_gradient",
-    "method.seed",
-)
-#: Which frame reads which numerical switch: physics → frame → ``section.key``
-#: (besides :data:`FLOW_COMMON_KEYS` for flow).
-FRAME_KEYS: dict[str, dict[str, tuple[str, ...]]] = {
-    "transport": {
-        "eulerian": ("method.theta", "method.supg", "method.preconditioner"),
-        "characteristic": (
-            "method.theta",
-            "method.source_integration",
-            "method.substep_courant",
-            "method.preconditioner",
-        ),
-        "lagrangian": (
-            *_PARTICLES,
-            "method.theta",
-            "method.source_integration",
-            "method.preconditioner",
-        ),
-    },
-    "flow": {
-        "eulerian": (
-            "method.supg",
-            "method.preconditioner",
-            "flow.interface_width",
-            "flow.reinit_every",
-            "flow.volume_correction",
-            "flow.quadrature_degree",
-        ),
-        "lagrangian": (
-            *_PARTICLES,
-            "method.preconditioner",
-            "flow.pic_fraction",
-            "flow.pic_fraction_light",
-            "flow.new_particle_velocity",
-            "flow.light_source",
-            "flow.mass_weighted",
-            "flow.affine",
-            "flow.density",
-            "flow.particle_redistance",
-            "flow.extra_pass",
-            "flow.pass_splits",
-            "flow.predictor",
-            "flow.predictor_substeps",
-            "flow.predictor_particles",
-            "flow.predictor_rtol",
-            "flow.predictor_divergence_rtol",
-            "flow.viscous_step",
-            "flow.explicit_pressure",
-            "flow.pass_pressure",
-        ),
-    },
-}
 
 #: Sections whose keys are free-form.
 FREE_SECTIONS = {"params", "variants", "frames", "phases", "case"}

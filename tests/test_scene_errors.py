@@ -357,3 +357,12 @@ def test_bounds_below_the_mesh_generators_precision_are_refused():
         "check", "gaussian-hill", "--variant", "small", "--set", "mesh.bounds=[[0,0],[1e-300,1]]"
     )
     assert_one_error(res, "mesh.bounds", "extent")
+
+
+@pytest.mark.parametrize(
+    ("scene", "effect", "physics"),
+    [("gaussian-hill", "gravity", "flow"), ("two-layer-rest", "diffusion", "transport")],
+)
+def test_an_effect_of_the_other_physics_is_refused(scene, effect, physics):
+    res = cli("check", scene, "--variant", "small", "--set", f"effects.{effect}=true")
+    assert_one_error(res, f"effects.{effect}", f"an effect of {physics} scenes")

@@ -7,7 +7,8 @@ import tomllib
 import pytest
 
 from pfem2x.scene import SECTION_TYPES, SceneError, builtin_scenes, load_scene, validate
-from pfem2x.scene_schema import FLOW_COMMON_KEYS, FRAME_KEYS, SCHEMA
+from pfem2x.scene_readers import FLOW_COMMON_KEYS, FRAME_KEYS
+from pfem2x.scene_schema import SCHEMA
 from pfem2x.scene_sections import PhaseSection, Section, thaw
 
 TRANSPORT = {
