@@ -427,6 +427,10 @@ class Simulation:
             f"diverged in step {lp.step + 1} (t = {t_good:.6g} -> {t_good + dt:.6g}, "
             f"{self.solver.time_label(t_good + dt)}): {exc}"
         )
+        if not isinstance(exc, ExpressionError):  # (that one names its key already)
+            culprit = self.solver.input_report(t_good, t_good + dt)
+            if culprit:
+                message += f" ({culprit})"
         self.last_good.write(t_good)
         return "diverged", EXIT_DIVERGED, message
 

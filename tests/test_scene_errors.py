@@ -3,6 +3,7 @@
 Each case runs the real command line (`python -m pfem2x check|run ...`).
 """
 
+import json
 import subprocess
 import sys
 
@@ -366,3 +367,15 @@ def test_bounds_below_the_mesh_generators_precision_are_refused():
 def test_an_effect_of_the_other_physics_is_refused(scene, effect, physics):
     res = cli("check", scene, "--variant", "small", "--set", f"effects.{effect}=true")
     assert_one_error(res, f"effects.{effect}", f"an effect of {physics} scenes")
+
+
+def test_a_divergence_names_the_expression_that_is_not_finite(tmp_path):
+    # numpy gives inf for 1/(x*0 + t - 0.5) at t = 0.5 (no exception): the field follows
+    out = tmp_path / "run"
+    src = 'transport.source="1/(x*0 + t - 0.5)"'
+    res = cli("run", "gaussian-hill", "--variant", "small", "--set", "effects.source=true",
+              "--set", src, "--out", str(out), "--quiet")  # fmt: skip
+    assert res.returncode == 3, res.stderr
+    assert "Traceback" not in res.stderr
+    msg = json.loads((out / "summary.json").read_text())["message"]
+    assert "transport.source is not finite at" in msg and "t = 0.5" in msg, msg

@@ -95,6 +95,14 @@ class Solver:
         self.auto_keys: dict[str, Any] = {}
 
     # -- time stepping ------------------------------------------------------
+    def input_report(self, t0: float, t1: float) -> str:
+        """Which of the scene's expressions are not finite in the step ``t0 -> t1`` (collective).
+
+        Called after a divergence, to name the key when a scene expression (not the
+        scheme) gave the NaN or Inf; ``""`` when none is (or the solver does not look).
+        """
+        return ""
+
     def max_velocity(self, t: float) -> float:
         """Largest speed on the mesh at time ``t`` (global); 0 when nothing moves."""
         return 0.0

@@ -185,6 +185,28 @@ class TransportBase(Solver):
         if p.boundary_value is not None:  # used on the sides only: evaluated, not checked
             p.boundary_value(x, 0.0)
 
+    def input_report(self, t0: float, t1: float) -> str:
+        """The transport expressions not finite on the owned nodes at ``t0``, the step's
+        middle or ``t1`` (collective): ``"transport.source is not finite at 81 node(s) at
+        t = 0.5"``, or ``""``."""
+        p, x = self.problem, self.coords[: self.V.dofmap.index_map.size_local]
+        keys = [k for k in ("velocity", "kappa", "source", "reaction") if getattr(p, k) is not None]
+        times = (t0, 0.5 * (t0 + t1), t1)
+        bad = np.zeros((len(keys), len(times)))
+        with np.errstate(all="ignore"):
+            for i, k in enumerate(keys):
+                for j, t in enumerate(times):
+                    v = p.velocity_at(x, t) if k == "velocity" else getattr(p, k)(x, t)
+                    bad[i, j] = np.count_nonzero(~np.isfinite(np.asarray(v).reshape(len(x), -1)))
+        bad = self.comm.allreduce(bad, op=MPI.SUM)
+        found = []
+        for i, k in enumerate(keys):
+            j = next((j for j in range(len(times)) if bad[i, j] > 0), None)
+            if j is not None:
+                found.append(f"transport.{k} is not finite at {int(bad[i, j])} node(s) at "
+                             f"t = {times[j]:.6g}")  # fmt: skip
+        return "; ".join(found)
+
     # -- helpers shared by the frames ---------------------------------------
     def periodic_constraint(self) -> PeriodicConstraint | None:
         """The periodic P1 constraint of the mesh (``None`` without periodic axes), built once."""
