@@ -65,8 +65,7 @@ FUNCTIONS: dict[str, Callable[..., Any]] = {
 #: Checked when an expression is compiled: numpy's ufuncs would read a surplus
 #: argument as their output array.
 ARITY: dict[str, int] = {
-    **{name: 2 for name in ("arctan2", "atan2", "minimum", "maximum", "min", "max")},
-    **{name: 2 for name in ("hypot", "mod")},
+    **dict.fromkeys(("arctan2", "atan2", "minimum", "maximum", "min", "max", "hypot", "mod"), 2),
     "where": 3,
 }
 #: Names always defined.

@@ -35,7 +35,7 @@ def test_no_png_when_none_is_asked_for(tmp_path, no_probe, over):
     assert no_probe == []
 
 
-def _diffusion_run(out, **output):
+def _diffusion_sim(out, **output):
     """A 2D diffusion scene to t = 0.2 (dt 0.05) with the PNG settings ``output``."""
     raw = {
         "scene": {"name": "t"},
@@ -45,7 +45,12 @@ def _diffusion_run(out, **output):
         "time": {"t_end": 0.2, "dt": 0.05},
         "output": {"fields": False, "csv": False, **output},
     }
-    return Simulation(validate(raw), out, quiet=True).run()
+    return Simulation(validate(raw), out, quiet=True)
+
+
+def _diffusion_run(out, **output):
+    """:func:`_diffusion_sim`, run."""
+    return _diffusion_sim(out, **output).run()
 
 
 def test_default_png_times_are_first_and_last_without_probe(tmp_path, no_probe):
@@ -189,15 +194,7 @@ def _early_stop(out, png_times, stop_at, how):
 
     from pfem2x.runner import Diverged
 
-    raw = {
-        "scene": {"name": "t"},
-        "mesh": {"kind": "rectangle", "bounds": [[0, 0], [2, 1]], "cells": [8, 4]},
-        "effects": {"diffusion": True},
-        "transport": {"kappa": 0.01, "initial": "sin(pi*x/2)*sin(pi*y)", "boundary_value": 0},
-        "time": {"t_end": 0.2, "dt": 0.05},
-        "output": {"fields": False, "csv": False, "png_times": png_times},
-    }
-    sim = Simulation(validate(raw), out, quiet=True)
+    sim = _diffusion_sim(out, png_times=png_times)
 
     def hook(sim, step, t):
         if step == stop_at and how == "diverge":
