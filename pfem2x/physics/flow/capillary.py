@@ -49,10 +49,17 @@ a weighted least-squares circle of the same form through the end points of
 the segments within ``fit_radius`` cells (each moved to the root of a
 quadratic along its cut edge, :func:`refined_segments`; :func:`segment_curvature`;
 its noise, 2e-4 of :math:`1/R` on a circle at h = 1/40, drove spurious currents
-:math:`\mu|u|/\sigma` of 1e-5 to 1e-4). Then the curvatures are averaged along the
-interface over the same radius (:func:`smooth_along`: the saw-tooth
-capillary waves of the P1 iso-line at h = 1/80 lowered the rising bubble's
-circularity by 3 % without).
+:math:`\mu|u|/\sigma` of 1e-5 to 1e-4). A circle fit over a window of radius
+:math:`r` is biased where the curvature varies, by about :math:`\kappa'' r^2`: with
+``extrapolate`` (PFEM-2, whose particles are dense enough for the smaller window) the
+fits over :math:`r` and :math:`2r/3` are extrapolated to :math:`r \to 0`,
+:math:`\kappa = (9\kappa_{2r/3} - 4\kappa_r)/5` (exact for a circle still). Then the
+curvatures are smoothed along the interface by a local quadratic fit over
+``smooth_radius`` cells (:func:`smooth_quadratic`, exact for a curvature varying
+quadratically; without smoothing the saw-tooth capillary waves of the P1 iso-line at
+h = 1/80 lowered the rising bubble's circularity by 3 %; with the kernel mean,
+:func:`smooth_along`, and the single fit over 3 cells an ellipse of aspect 2.2 lost up to
+17 % of its tip curvature at h = 1/40: docs/RESULTS.md, "The curvature's window").
 
 Semi-implicit (Bänsch 2001, Hysing 2006): the capillary force at the new
 time level is :math:`\sigma\int_\Gamma\nabla_\Gamma x^{n+1}:\nabla_\Gamma v`
@@ -107,6 +114,7 @@ from pfem2x.physics.flow.curvature import (
     region_distance,
     segment_curvature,
     smooth_along,
+    smooth_quadratic,
 )
 from pfem2x.physics.flow.interface import InterfaceGeometry, positive_fraction
 
@@ -260,6 +268,14 @@ class CapillaryForce:
         The implicit term (``flow.capillary_damping``): ``"surface"``, of the whole
         velocity; ``"normal"``, of the normal velocity :math:`u\cdot n_h` only (module
         docstring).
+    extrapolate
+        The segment's curvature extrapolated from the distance fits over ``fit_radius``
+        and two thirds of it to a window of radius 0 (Richardson: the fit's bias grows as
+        the radius squared); for dense samples (PFEM-2's particles: the level set's nodes
+        of the cut cells are too few for the smaller window).
+    smooth_radius
+        Radius in cells of the quadratic fit along the interface that smooths the
+        segments' curvatures (:func:`.smooth_quadratic`).
     """
 
     def __init__(
@@ -273,6 +289,8 @@ class CapillaryForce:
         samples: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None,
         stretch_tolerance: float = np.inf,
         damping: str = "surface",
+        extrapolate: bool = False,
+        smooth_radius: float = 4.0,
     ):
         self.interface = interface
         self.samples = samples
@@ -288,6 +306,8 @@ class CapillaryForce:
         self.sigma = float(sigma)
         self.band = float(band)
         self.radius = float(fit_radius) * float(h)
+        self.smooth_radius = float(smooth_radius) * float(h)
+        self.extrapolate = bool(extrapolate)
         mesh = Q.mesh
         self._xy = interface.coords[:, :2]
         #: nodal curvature kappa_h (P1) and the potential I_h(sigma kappa_h H_h) (P1)
@@ -484,9 +504,17 @@ class CapillaryForce:
         ok &= np.abs(coef[:, 0] - 1.0) <= self.stretch_tolerance
         self.fallback_segments = int(np.count_nonzero(~ok))
         self.segment_count = len(ok)
+        if self.extrapolate:
+            # the fit's bias grows as the window's radius squared (kappa'' r^2): the fits
+            # over 2/3 and all of it, extrapolated to r -> 0
+            kap_in, ok_in, _ = distance_curvature(
+                allsegs, normals, pts, dvals, self.radius * 2.0 / 3.0
+            )
+            both = ok & ok_in
+            kap[both] = (9.0 * kap_in[both] - 4.0 * kap[both]) / 5.0
         if not ok.all():
             kap[~ok] = segment_curvature(allsegs[~ok], self.radius, normals[~ok])
-        return segs, cells, allsegs, smooth_along(allsegs, kap, self.radius)
+        return segs, cells, allsegs, smooth_quadratic(allsegs, kap, self.smooth_radius)
 
     def update(self, phi: np.ndarray, cell_vol: np.ndarray) -> None:
         """Recompute :math:`\\kappa_h`, the potential and the tensor from nodal values ``phi``.

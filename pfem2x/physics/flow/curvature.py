@@ -5,9 +5,10 @@ points moved onto a quadratic per edge (:func:`refined_segments`), and two curva
 estimates per segment: a least-squares circle through the end points around it
 (:func:`segment_curvature`) and a least-squares fit of the exact signed distance of a circle
 to the signed-distance samples around it (:func:`distance_curvature`, nodes or particles:
-exact for a circle); :func:`smooth_along` averages along the interface,
-:func:`closest_mean` extends to the nodes. :func:`region_distance`: the signed distance to
-a region's boundary sampled below the mesh size (the initial samples).
+exact for a circle); :func:`smooth_along` averages along the interface and
+:func:`smooth_quadratic` fits a quadratic along it, :func:`closest_mean` extends to the
+nodes. :func:`region_distance`: the signed distance to a region's boundary sampled below
+the mesh size (the initial samples).
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ __all__ = [
     "region_distance",
     "segment_curvature",
     "smooth_along",
+    "smooth_quadratic",
 ]
 
 
@@ -349,6 +351,38 @@ def smooth_along(segs: np.ndarray, values: np.ndarray, radius: float) -> np.ndar
         r2 = np.einsum("cpj,cpj->cp", d, d) / radius**2
         w = np.where(r2 < 1.0, (1.0 - r2) ** 2, 0.0) * length[None, :]
         out[k : k + chunk] = (w @ values) / np.maximum(w.sum(axis=1), 1e-300)
+    return out
+
+
+def smooth_quadratic(segs: np.ndarray, values: np.ndarray, radius: float) -> np.ndarray:
+    r"""Local quadratic regression of per-segment ``values`` along the interface.
+
+    Around each segment the values of the segments whose midpoints lie within ``radius``
+    (weights :math:`(1 - d^2/r^2)^2` times the segment length, as :func:`smooth_along`)
+    are fitted by :math:`c_0 + c_1 s + c_2 s^2`, :math:`s` the offset along the segment's
+    tangent; the result is :math:`c_0`. A value that varies quadratically along a straight
+    interface is kept exactly, where the kernel mean of :func:`smooth_along` is biased by
+    :math:`\kappa'' r^2/14` (an ellipse's tips: docs/RESULTS.md, "The curvature's window").
+    With fewer than five segments in the window: the kernel mean.
+    """
+    m = len(segs)
+    if m == 0:
+        return values.copy()
+    mid = segs.mean(axis=1)
+    tangent = segs[:, 1] - segs[:, 0]
+    length = np.linalg.norm(tangent, axis=1)
+    tangent = tangent / np.maximum(length, 1e-300)[:, None]
+    ci, pj = _pairs_within(mid, mid, radius)
+    d = mid[pj] - mid[ci]
+    w = (1.0 - np.einsum("kj,kj->k", d, d) / radius**2) ** 2 * length[pj]
+    s = np.einsum("kj,kj->k", d, tangent[ci]) / radius  # (scaled: moments of order 1)
+    mom = [np.bincount(ci, w * s**k, minlength=m) for k in range(5)]
+    rhs = np.stack([np.bincount(ci, w * s**k * values[pj], minlength=m) for k in range(3)], 1)
+    M = np.stack([np.stack(mom[i : i + 3], 1) for i in range(3)], 1)
+    M += (1e-14 * np.einsum("kii->k", M) + 1e-300)[:, None, None] * np.eye(3)
+    out = np.linalg.solve(M, rhs[:, :, None])[:, 0, 0]
+    few = np.bincount(ci, minlength=m) < 5
+    out[few] = rhs[few, 0] / np.maximum(mom[0][few], 1e-300)
     return out
 
 

@@ -56,6 +56,7 @@ class ParticleCapillary:
             samples=lambda: (self.cloud_.x, self.cloud_.field("dist")),
             stretch_tolerance=0.1 if redistance else 0.05,
             damping=self.scene.flow.capillary_damping,
+            extrapolate=True,
         )
         if redistance:
             self.redistance_band = 3.0 * self.H
