@@ -173,6 +173,7 @@ def test_bad_cli(args, needles):
         ("gaussian-hill", "transport.initial", '"sqrt(x)"'),
         ("gaussian-hill", "transport.initial", '"log(x - 10)"'),
         ("taylor-green", "flow.initial_velocity", '["1/(x - x)", "0"]'),
+        ("channel", "flow.inflow_velocity", '["1/(y - y)", "0"]'),
     ],
 )
 def test_initial_field_not_finite(scene, key, expr, tmp_path):
@@ -181,6 +182,24 @@ def test_initial_field_not_finite(scene, key, expr, tmp_path):
     res = cli("run", scene, "--variant", "small", "--set", f"{key}={expr}", "--out", str(out))
     assert_one_error(res, key, "not finite")
     assert not out.exists()
+
+
+@pytest.mark.parametrize("frame", ["eulerian", "lagrangian"])
+def test_inflow_velocity_counts_on_the_inflow_side_only(frame, tmp_path):
+    """``flow.inflow_velocity`` is used on the inflow side: NaN elsewhere (0/0 at the outflow
+    side x = 4) changes nothing; the channel's own profile gives the same run to the bit."""
+    f = f'method.frame="{frame}"'
+    profile = "4*Um*y*(Hc - y)/Hc**2"
+    errors = []
+    for expr in (profile, f"{profile} + 0/(x - 4)"):
+        out = tmp_path / str(len(errors))
+        inflow = f'flow.inflow_velocity=["{expr}", "0"]'
+        res = cli("run", "channel", "--variant", "small", "--set", f, "--set", inflow,
+                  "--set", "output.png=false", "--out", str(out))  # fmt: skip
+        assert res.returncode == 0, res.stderr
+        summary = json.loads((out / "summary.json").read_text())
+        errors.append(summary["metrics"]["velocity_l2_error_final"])
+    assert errors[0] == errors[1]
 
 
 def test_existing_output_folder_untouched(tmp_path):

@@ -40,7 +40,13 @@ def require_finite(comm: MPI.Comm, what: str, values: np.ndarray) -> None:
         raise Diverged(f"{what} is not finite")
 
 
-def require_finite_input(comm: MPI.Comm, key: str, values: np.ndarray, coords: np.ndarray) -> None:
+def require_finite_input(
+    comm: MPI.Comm,
+    key: str,
+    values: np.ndarray,
+    coords: np.ndarray,
+    where: str = "the whole domain",
+) -> None:
     """Raise :class:`~pfem2x.scene.SceneError` naming ``key`` if ``values`` is not finite.
 
     For fields a scene key sets (an initial condition): NaN or Inf there is
@@ -58,6 +64,8 @@ def require_finite_input(comm: MPI.Comm, key: str, values: np.ndarray, coords: n
         This rank's nodal values, one row (or value) per node of ``coords``.
     coords
         This rank's node coordinates (rows of at least 2 entries).
+    where
+        Where the expression must be finite (the message's advice).
     """
     vals = np.asarray(values).reshape(len(coords), -1)
     bad = ~np.all(np.isfinite(vals), axis=1)
@@ -66,10 +74,10 @@ def require_finite_input(comm: MPI.Comm, key: str, values: np.ndarray, coords: n
         return
     first = comm.allgather(coords[np.flatnonzero(bad)[0]] if bad.any() else None)
     xy = next(c for c in first if c is not None)
-    where = ", ".join(f"{float(c):.6g}" for c in xy[: max(1, coords.shape[1])])
+    first_at = ", ".join(f"{float(c):.6g}" for c in xy[: max(1, coords.shape[1])])
     raise SceneError(
-        f"{key}: not finite at {n_bad} node(s) of the mesh, the first at ({where}); "
-        "give an expression that is finite on the whole domain"
+        f"{key}: not finite at {n_bad} node(s) of the mesh, the first at ({first_at}); "
+        f"give an expression that is finite on {where}"
     )
 
 

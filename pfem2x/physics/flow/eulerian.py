@@ -157,6 +157,7 @@ class EulerianFlow(FlowSolver):
             self._levelset_forms(dxq)
         self._momentum_forms(rho, mu, fg, dxq)
         self._update_inflow(0.0)
+        self._require_finite_inflow()
         compat.set_bc(compat.petsc_vec(self.u), self._bcs_u)
         self.u.x.scatter_forward()
         if np.any(pr.gravity) or self.capillary is not None:

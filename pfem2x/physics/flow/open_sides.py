@@ -40,6 +40,8 @@ class OpenSides:
     a_K: Any
     _bcs_u: list
     _inflow: Any
+    #: the nodes of the inflow sides (:meth:`FlowSolver._boundary_conditions`)
+    _inflow_nodes: np.ndarray
     #: the end of the current step (the inflow values of new particles)
     _t_next: float = 0.0
     #: inflow seedings so far (their random seeds)
@@ -139,7 +141,8 @@ class OpenSides:
         in this step (the largest inflow speed times the step, plus a cell); None
         when the band is the first layer only.
         """
-        u_in = self._inflow.x.array.reshape(-1, self.gdim)
+        # (the inflow sides' nodes: the expression is evaluated everywhere, used there)
+        u_in = self._inflow.x.array.reshape(-1, self.gdim)[self._inflow_nodes]
         reach = float(np.sqrt((u_in**2).sum(axis=1)).max(initial=0.0)) * self._dt_step
         reach = float(self.comm.allreduce(reach, op=MPI.MAX))
         if reach <= self.H:

@@ -208,6 +208,7 @@ class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers,
     def __init__(self, scene: Scene, domain: Domain):
         super().__init__(scene, domain)
         self._update_inflow(0.0)  # (the inflow sides' values, before u gets its conditions)
+        self._require_finite_inflow()
         pr = self.problem
         fl = scene.flow
         mesh = domain.mesh

@@ -304,6 +304,8 @@ class FlowSolver(Solver):
         mesh = self.domain.mesh
         bcs_u, bcs_p = [], []
         inflow = None
+        #: the nodes of the inflow sides (where flow.inflow_velocity is used)
+        self._inflow_nodes = np.zeros(0, dtype=np.int32)
         for k, side in enumerate(FLOW_SIDES[: 2 * self.gdim]):
             axis, val = k // 2, (lo if k % 2 == 0 else hi)[k // 2]
             kind = pr.sides[side]
@@ -317,6 +319,10 @@ class FlowSolver(Solver):
                 if kind == "inflow":
                     inflow = g if inflow is None else inflow
                     g = inflow
+                    nodes = compat.dolfinx.fem.locate_dofs_topological(
+                        self.Q, mesh.topology.dim - 1, facets
+                    )
+                    self._inflow_nodes = np.union1d(self._inflow_nodes, nodes)
                 bcs_u.append(compat.dirichlet_component(self.V, None, facets, g))
             elif kind == "outflow":
                 dofs = compat.dolfinx.fem.locate_dofs_topological(
@@ -331,6 +337,25 @@ class FlowSolver(Solver):
         arr = self._inflow.x.array.reshape(-1, self.gdim)
         for i, e in enumerate(self.problem.inflow_velocity):
             arr[:, i] = e(self.coords, t)
+
+    def _require_finite_inflow(self) -> None:
+        """SceneError if ``flow.inflow_velocity`` is not finite on the inflow sides at t = 0.
+
+        Only the sides' own nodes count (the expression is evaluated everywhere but used
+        there). Collective.
+        """
+        if self._inflow is None:
+            return
+        n = self.Q.dofmap.index_map.size_local
+        nodes = self._inflow_nodes[self._inflow_nodes < n]
+        arr = self._inflow.x.array.reshape(-1, self.gdim)
+        require_finite_input(
+            self.comm,
+            "flow.inflow_velocity",
+            arr[nodes],
+            self.coords[nodes, : self.gdim],
+            where="the inflow sides",
+        )
 
     # -- what a frame measures ------------------------------------------------
     def phase_volumes(self) -> dict[str, float]:
