@@ -10,7 +10,8 @@ keys). :func:`apply_layers` writes them into the scene's raw dict: first the tab
 the run's frame, then the variant, then the variant's table of the run's frame, then
 ``--set``, each layer over the ones before it, so that a variant or a ``--set`` always
 wins over a frame table. A layer that sets exactly one of ``time.dt`` and
-``time.courant`` replaces the other.
+``time.courant`` replaces the other; one that sets ``time.dt`` also drops an earlier
+``time.adaptive`` (a step re-evaluated from ``time.courant``).
 """
 
 from __future__ import annotations
@@ -257,11 +258,16 @@ def apply_layers(
     for layer in (chosen, variant, own, sets):
         step = _step_keys(layer)
         if len(step) == 1 and isinstance(raw.get("time"), dict):
-            raw["time"].pop(_STEP[1 - _STEP.index(step.pop())], None)
+            given = step.pop()
+            raw["time"].pop(_STEP[1 - _STEP.index(given)], None)
+            if given == "dt" and ["time", "adaptive"] not in [p for p, _, _ in layer]:
+                raw["time"].pop("adaptive", None)  # re-evaluated from time.courant only
         for parts, value, where in layer:
             _set_dotted(raw, parts, value, where)
     after = variant + own + sets
     later = {tuple(p) for p, _, _ in after}
     if _step_keys(after):
         later |= {("time", k) for k in _STEP}
+    if "dt" in _step_keys(after):
+        later.add(("time", "adaptive"))
     return [e for e in chosen if tuple(e[0]) not in later]

@@ -101,6 +101,37 @@ flow.rtol = 1e-7
     assert load_scene(p).time.courant == 2.0
 
 
+def test_a_fixed_step_over_an_adaptive_one_drops_adaptive(tmp_path):
+    """``time.dt`` in a later layer replaces the frame table's re-evaluated Courant step."""
+    p = write(
+        tmp_path,
+        """
+[frames.lagrangian]
+"time.courant" = 3.0
+"time.adaptive" = true
+"flow.rtol" = 1e-7
+[variants.fine]
+"time.dt" = 0.01
+[variants.fine.frames.lagrangian]
+"time.courant" = 1.5
+""",
+    )
+    sc = load_scene(p)
+    assert sc.time.courant == 3.0 and sc.time.adaptive and sc.time.dt is None
+    for over in (["time.dt=0.05"], ["time.dt=0.05", "method.frame=eulerian"]):
+        sc = load_scene(p, over)
+        assert sc.time.dt == 0.05 and sc.time.courant is None and not sc.time.adaptive
+    assert load_scene(p, ["time.dt=0.05"]).frame_keys == ("flow.rtol = 1e-07",)
+    # a layer that gives both keeps its own choice
+    sc = load_scene(p, ["time.dt=0.05", "time.adaptive=true"])
+    assert sc.time.dt == 0.05 and sc.time.adaptive
+    # the variant's step, then its frame table's Courant number: adaptive again
+    sc = load_scene(p, variant="fine")
+    assert sc.time.courant == 1.5 and sc.time.dt is None and sc.time.adaptive is False
+    sc = load_scene(p, ["method.frame=eulerian"], "fine")
+    assert sc.time.dt == 0.01 and not sc.time.adaptive
+
+
 def test_a_variant_has_frame_tables_of_its_own(tmp_path):
     p = write(
         tmp_path,
@@ -137,6 +168,17 @@ def test_a_variant_has_frame_tables_of_its_own(tmp_path):
     assert lag.flow.capillary_damping == ls.flow.capillary_damping == "normal"
     assert (lag.flow.extra_pass, lag.flow.pressure_step) == (True, "increment")
     assert (ls.flow.extra_pass, ls.flow.pressure_step) == (False, "total")
+    # PFEM-2's own step (the scene's frame table): Courant 3, 2 at h = 1/40; the level set
+    # keeps the fixed steps of the scene and its mesh variants
+    for variant, courant, dt in ((None, 3.0, 0.01), ("h40", 2.0, 0.02), ("h160", 3.0, 0.005)):
+        lag = load_scene("rising-bubble", ['method.frame="lagrangian"'], variant)
+        assert (lag.time.courant, lag.time.dt, lag.time.adaptive) == (courant, None, True)
+        assert lag.flow.capillary_increment and lag.flow.extra_pass
+        ls = load_scene("rising-bubble", [], variant)
+        assert (ls.time.courant, ls.time.dt, ls.time.adaptive) == (None, dt, False)
+        assert not ls.flow.capillary_increment
+    small = load_scene("rising-bubble", ['method.frame="lagrangian"'], "small")
+    assert (small.time.dt, small.time.adaptive) == (0.04, False)
 
 
 @pytest.mark.parametrize(
