@@ -398,3 +398,19 @@ def test_a_divergence_names_the_expression_that_is_not_finite(tmp_path):
     assert "Traceback" not in res.stderr
     msg = json.loads((out / "summary.json").read_text())["message"]
     assert "transport.source is not finite at" in msg and "t = 0.5" in msg, msg
+
+
+@pytest.mark.parametrize("frame", ["eulerian", "lagrangian"])
+def test_a_flow_divergence_names_the_inflow_velocity(frame, tmp_path):
+    """A ``flow.inflow_velocity`` that turns NaN in the run (sqrt of a negative number
+    after t = 0.47, no exception) is named in the divergence message, with the count of
+    the inflow side's nodes (the small channel's 9)."""
+    out = tmp_path / "run"
+    inflow = 'flow.inflow_velocity=["4*Um*y*(Hc - y)/Hc**2 + 0*sqrt(0.47 - t + 0*y)", "0"]'
+    res = cli("run", "channel", "--variant", "small", "--set", f'method.frame="{frame}"',
+              "--set", "time.dt=0.05", "--set", inflow, "--set", "output.png=false",
+              "--out", str(out), "--quiet")  # fmt: skip
+    assert res.returncode == 3, res.stderr
+    assert "Traceback" not in res.stderr
+    msg = json.loads((out / "summary.json").read_text())["message"]
+    assert "flow.inflow_velocity is not finite at 9 node(s) at t = 0.475" in msg, msg
