@@ -445,6 +445,11 @@ def _check_consistency(s: dict[str, dict[str, Any]], base_dir: Path) -> int | No
         raise SceneError(f"mesh.partition: {what} is only available for rectangles")
     if (t["dt"] is None) == (t["courant"] is None):
         raise SceneError("time: give exactly one of time.dt and time.courant")
+    if t["adaptive"] and t["courant"] is None:
+        raise SceneError(
+            "time.adaptive: re-evaluates the step from time.courant, and this scene gives "
+            "a fixed time.dt; give time.courant instead (or time.adaptive = false)"
+        )
     if t["dt"] is not None and t["dt"] > t["t_end"]:
         raise SceneError(f"time.dt: {t['dt']:g} is larger than time.t_end = {t['t_end']:g}")
     if t["dt"] is not None and t["t_end"] / t["dt"] > t["max_steps"]:

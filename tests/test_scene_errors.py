@@ -130,6 +130,22 @@ def test_adaptive_scene_check_names_the_courant_number(tmp_path):
     assert "steps of dt" not in res.stdout
 
 
+def test_adaptive_with_a_fixed_step_is_refused(tmp_path):
+    """``time.adaptive`` with ``time.dt`` (no Courant number to follow): one error line, not
+    a silently fixed step; a later ``time.dt`` over a frame table's adaptive Courant step
+    replaces both (docs/USAGE.md)."""
+    p = tmp_path / "scene.toml"
+    p.write_text(GOOD)
+    assert_one_error(
+        cli("check", str(p), "--set", "time.adaptive=true"), "time.adaptive", "time.courant"
+    )
+    res = cli(
+        "check", "rising-bubble", "--set", 'method.frame="lagrangian"', "--set", "time.dt=0.05"
+    )
+    assert res.returncode == 0, res.stderr
+    assert "60 steps of dt = 0.05" in res.stdout
+
+
 def test_corrupt_gmsh_file(tmp_path):
     geo = tmp_path / "bad.geo"
     geo.write_text("Point(1) = {0, 0, 0\nthis is not gmsh {{{\n")

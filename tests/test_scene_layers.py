@@ -122,9 +122,9 @@ def test_a_fixed_step_over_an_adaptive_one_drops_adaptive(tmp_path):
         sc = load_scene(p, over)
         assert sc.time.dt == 0.05 and sc.time.courant is None and not sc.time.adaptive
     assert load_scene(p, ["time.dt=0.05"]).frame_keys == ("flow.rtol = 1e-07",)
-    # a layer that gives both keeps its own choice
-    sc = load_scene(p, ["time.dt=0.05", "time.adaptive=true"])
-    assert sc.time.dt == 0.05 and sc.time.adaptive
+    # a layer that gives both: adaptive with a fixed step is refused
+    with pytest.raises(SceneError, match="time.adaptive"):
+        load_scene(p, ["time.dt=0.05", "time.adaptive=true"])
     # the variant's step, then its frame table's Courant number: adaptive again
     sc = load_scene(p, variant="fine")
     assert sc.time.courant == 1.5 and sc.time.dt is None and sc.time.adaptive is False
