@@ -9,6 +9,8 @@ import sys
 
 import pytest
 
+from pfem2x import compat
+
 GOOD = """
 [scene]
 name = "tiny"
@@ -215,7 +217,14 @@ def test_inflow_velocity_counts_on_the_inflow_side_only(frame, tmp_path):
         assert res.returncode == 0, res.stderr
         summary = json.loads((out / "summary.json").read_text())
         errors.append(summary["metrics"]["velocity_l2_error_final"])
-    assert errors[0] == errors[1]
+    if not compat.NEW_API:  # Debian's DOLFINx 0.5.2: the same run to the bit
+        assert errors[0] == errors[1]
+    else:
+        # DOLFINx 0.11 (PyPI wheel): one process in about eight gives other last bits for
+        # the same scene, the profile alone (0.011415612449999484 / ...505, 1.8e-15
+        # relative; with every preconditioner Jacobi too): round-off. A value of the NaN
+        # side used anywhere would make the metric NaN or move it far beyond that
+        assert errors[1] == pytest.approx(errors[0], rel=1e-13, abs=0.0)
 
 
 def test_existing_output_folder_untouched(tmp_path):
