@@ -71,8 +71,14 @@ def _serial_reference(path: Path, out: Path) -> str | None:
 # which is near 0). A "*_change" metric is the difference of two integrals (Zalesak:
 # ~510): there 0.034 absolute was measured on the 0.11 wheel (7e-5 of the integral),
 # so those get 0.05 absolute in the particle frames.
+# The particle frames' largest and RMS cell divergence (``div_max``, ``div_rms_max``)
+# are what the discrete projection leaves: its GMRES stops at 5 % of the divergence
+# (``flow.divergence_rtol``) on a Krylov path that follows the partition, so they are
+# compared to that tolerance (measured: 1.2 % on the 0.11 wheel, the rising-bubble
+# demo's PFEM-2 at Courant 2, 0.6759 / 0.6840).
 TOLERANCES = {False: (5e-4, 1e-8), True: (2e-3, 5e-3)}
 CHANGE_ATOL = 0.05
+DIVERGENCE_RTOL = 0.05
 
 
 def _numbers(d: dict, pre: str = "") -> dict[str, float]:
@@ -106,10 +112,11 @@ def _compare_summaries(serial: Path, parallel: Path) -> int:
         for k, va in ma.items():
             vb = mb[k]
             atol = CHANGE_ATOL if particles and k.endswith("_change") else atol0
+            tol = DIVERGENCE_RTOL if particles and k.startswith("div_") else rtol
             if math.isnan(va):
                 assert math.isnan(vb), (rel, k)
                 continue
-            assert abs(va - vb) <= rtol * max(abs(va), abs(vb)) + atol, (str(rel), k, va, vb)
+            assert abs(va - vb) <= tol * max(abs(va), abs(vb)) + atol, (str(rel), k, va, vb)
     return len(files)
 
 
