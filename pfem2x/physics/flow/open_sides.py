@@ -40,6 +40,8 @@ class OpenSides:
     a_K: Any
     _bcs_u: list
     _inflow: Any
+    #: ``flow.inflow_velocity`` at points and a time (:meth:`FlowSolver.inflow_at`)
+    inflow_at: Any
     #: the nodes of the inflow sides (:meth:`FlowSolver._boundary_conditions`)
     _inflow_nodes: np.ndarray
     #: the end of the current step (the inflow values of new particles)
@@ -80,12 +82,12 @@ class OpenSides:
         """
         if self._inflow is None:
             return
-        exprs, t = self.problem.inflow_velocity, self._t_next
+        t = self._t_next
 
         def u_in(x: np.ndarray) -> np.ndarray:
             x3 = np.zeros((len(x), 3))
             x3[:, : self.gdim] = x
-            return np.stack([np.broadcast_to(e(x3, t), len(x)) for e in exprs], axis=1)
+            return self.inflow_at(x3, t)
 
         self._inflow_seed += 1
         ppc, seed = self.scene.method.particles_per_cell, self.scene.method.seed

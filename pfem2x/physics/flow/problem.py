@@ -334,9 +334,17 @@ class FlowSolver(Solver):
     def _update_inflow(self, t: float) -> None:
         if self._inflow is None:
             return
-        arr = self._inflow.x.array.reshape(-1, self.gdim)
-        for i, e in enumerate(self.problem.inflow_velocity):
-            arr[:, i] = e(self.coords, t)
+        self._inflow.x.array.reshape(-1, self.gdim)[:] = self.inflow_at(self.coords, t)
+
+    def inflow_at(self, x: np.ndarray, t: float) -> np.ndarray:
+        """``flow.inflow_velocity`` at the points ``x`` (rows of 3 coordinates) and time
+        ``t``, shape ``(len(x), gdim)``."""
+        exprs = self.problem.inflow_velocity
+        return np.stack([np.broadcast_to(e(x, t), len(x)) for e in exprs], axis=1)
+
+    def _owned_inflow_nodes(self) -> np.ndarray:
+        """This rank's owned nodes of the inflow sides."""
+        return self._inflow_nodes[self._inflow_nodes < self.Q.dofmap.index_map.size_local]
 
     def _require_finite_inflow(self) -> None:
         """SceneError if ``flow.inflow_velocity`` is not finite on the inflow sides at t = 0.
@@ -346,8 +354,7 @@ class FlowSolver(Solver):
         """
         if self._inflow is None:
             return
-        n = self.Q.dofmap.index_map.size_local
-        nodes = self._inflow_nodes[self._inflow_nodes < n]
+        nodes = self._owned_inflow_nodes()
         arr = self._inflow.x.array.reshape(-1, self.gdim)
         require_finite_input(
             self.comm,
@@ -364,16 +371,13 @@ class FlowSolver(Solver):
         or ``""``."""
         if self._inflow is None:
             return ""
-        n = self.Q.dofmap.index_map.size_local
-        x = self.coords[self._inflow_nodes[self._inflow_nodes < n]]
+        x = self.coords[self._owned_inflow_nodes()]
         times = (t0, 0.5 * (t0 + t1), t1)
         bad = np.zeros(len(times))
         with np.errstate(all="ignore"):
             for j, t in enumerate(times):
-                v = np.stack(
-                    [np.broadcast_to(e(x, t), len(x)) for e in self.problem.inflow_velocity]
-                )
-                bad[j] = np.count_nonzero(~np.all(np.isfinite(v), axis=0))
+                v = self.inflow_at(x, t)
+                bad[j] = np.count_nonzero(~np.all(np.isfinite(v), axis=1))
         bad = self.comm.allreduce(bad, op=MPI.SUM)
         j = next((j for j in range(len(times)) if bad[j] > 0), None)
         if j is None:
