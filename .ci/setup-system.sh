@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Install pfem2x's Debian 12 packages if any is missing (needs root or sudo).
 set -euo pipefail
-PKGS=(python3-dolfinx python3-gmsh python3-mpi4py python3-petsc4py python3-numba
+PKGS=(python3-dolfinx python3-gmsh python3-mpi4py python3-petsc4py
       python3-venv python3-pip make
       libgl1 libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 libxrender1)  # headless VTK (pyvista PNG)
 missing=()

@@ -1,7 +1,8 @@
 """The particle kernels' numba compilation: warmed once at set-up, announced when cold.
 
 The kernels of :mod:`pfem2x.particles._kernels` are compiled by numba on first
-use (minutes: about 8 on a 2-core virtual machine) and cached on disk next to the source
+use (under a minute with numba 0.68 on a 2-core virtual machine; numba 0.56 took
+about 8) and cached on disk next to the source
 (``pfem2x/particles/__pycache__``, or under ``NUMBA_CACHE_DIR``); later runs
 load them in about a second. :func:`warm_up` compiles or loads every kernel a
 scene uses by running the particle layer once on a tiny mesh, and says so first
@@ -10,8 +11,9 @@ first ``pfem2x run`` after installing starts at once; the runner calls it during
 set-up and reports the seconds it took as ``compile_seconds``.
 
 The cache is cold when the marker :data:`MARKER` that a completed warm-up leaves
-next to the cache files is missing or older than ``_kernels.py``, or when fewer
-cache index files are there than the warm-up left. If the check is wrong, a
+next to the cache files is missing or older than ``_kernels.py``, when fewer
+cache index files are there than the warm-up left, or when the warm-up ran with
+another numba version (numba does not load code cached by another version). If the check is wrong, a
 warm-up that runs longer than :data:`LATE_NOTICE` seconds still announces itself.
 """
 
@@ -19,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import importlib.metadata
 import os
 import sys
 import threading
@@ -28,11 +31,12 @@ from pathlib import Path
 from typing import Any
 
 #: What a run prints (rank 0, not with ``--quiet``) while the kernels compile.
-MESSAGE = "compiling particle kernels (first run after install or a kernel change: minutes)..."
+MESSAGE = "compiling particle kernels (first run after install or a kernel change)..."
 
 KERNELS = Path(__file__).resolve().parent / "particles" / "_kernels.py"
 _TAG = f"py{sys.version_info[0]}{sys.version_info[1]}"
-#: Left next to the cache files by a completed warm-up: the number of index files.
+#: Left next to the cache files by a completed warm-up: the number of index files and
+#: the numba version.
 MARKER = f"_kernels.warm.{_TAG}"
 #: Seconds after which a warm-up that the cache check took for warm announces itself.
 LATE_NOTICE = 10.0
@@ -61,6 +65,14 @@ def cache_dir() -> Path:
     return Path(home) / "numba" / sub
 
 
+def numba_version() -> str:
+    """The installed numba's version, from its package metadata (numba is not imported)."""
+    try:
+        return importlib.metadata.version("numba")
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
+
+
 def _index_files(folder: Path) -> list[Path]:
     """numba's index files of the current ``_kernels.py`` (those of earlier versions stay)."""
     if not folder.is_dir():
@@ -84,8 +96,11 @@ def is_cold() -> bool:
         src = KERNELS.stat().st_mtime
         if marker.stat().st_mtime < src:
             return True
-        expected = int(marker.read_text().strip() or 0)
+        fields = marker.read_text().split()
+        expected = int(fields[0]) if fields else 0
     except (OSError, ValueError):
+        return True
+    if len(fields) < 2 or fields[1] != numba_version():
         return True
     return len(_index_files(folder)) < expected
 
@@ -93,7 +108,7 @@ def is_cold() -> bool:
 def _mark_warm() -> None:
     folder = cache_dir()
     try:
-        (folder / MARKER).write_text(f"{len(_index_files(folder))}\n")
+        (folder / MARKER).write_text(f"{len(_index_files(folder))} {numba_version()}\n")
     except OSError:  # a read-only install: numba caches elsewhere or not at all
         pass
 

@@ -18,7 +18,12 @@ def test_cold_cache_check_follows_marker_and_index_files(tmp_path, monkeypatch):
         p.write_bytes(b"")
     assert jit.is_cold()  # index files but no completed warm-up
     jit._mark_warm()
-    assert (folder / jit.MARKER).read_text().strip() == "2"
+    assert (folder / jit.MARKER).read_text().split() == ["2", jit.numba_version()]
+    assert not jit.is_cold()
+    monkeypatch.setattr(jit, "numba_version", lambda: "0.0.0")  # numba changed since
+    assert jit.is_cold()
+    monkeypatch.undo()
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
     assert not jit.is_cold()
     index[0].unlink()  # a cache file removed since
     assert jit.is_cold()
