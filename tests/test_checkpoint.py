@@ -109,12 +109,19 @@ def test_resume_matches_uninterrupted(shared_tmp, case):
         # differs from the uninterrupted one by up to 2e-15 (79 of 121 nodal values, seen
         # only when another case ran first in the process; two uninterrupted runs never
         # differed). Suspected: the wheel's PETSc vector kernels depend on memory alignment.
-        # Round-off, not bit identity, is asserted there.
+        # Round-off, not bit identity, is asserted there. The pressure of a closed box is
+        # defined up to a constant, and once in CI the resumed rayleigh-taylor-lagrangian
+        # run's p and dp differed from the uninterrupted run's by a constant 1.3e-3 (2.6e-4
+        # of max |p|; u within round-off): the singular pressure solve's constant component
+        # follows the round-off. The pressures are compared without that constant there.
         a, b = state_arrays(full), state_arrays(resumed)
         assert a.keys() == b.keys()
         for k in a:
             scale = max(float(np.abs(a[k]).max(initial=0.0)), 1e-300)
-            assert np.abs(a[k] - b[k]).max(initial=0.0) <= 1e-13 * scale, k
+            diff = a[k] - b[k]
+            if k in ("function.p", "function.dp") and case.startswith("rayleigh-taylor"):
+                diff = diff - diff.mean()
+            assert np.abs(diff).max(initial=0.0) <= 1e-13 * scale, k
     else:
         # The built-in meshes are partitioned deterministically (partition.block_partitioner),
         # so the resumed run continues on the same partition: round-off only.
