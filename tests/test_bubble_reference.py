@@ -200,13 +200,16 @@ def test_interfoam_series_curve_table(capsys, benchmark_script):
     """The stored interFoam series against MooNMD: one row each; a bad file is one error."""
     mod = benchmark_script("interfoam_bubble")
     files = sorted((DATA / "interfoam").glob("series_n*.csv"))
-    assert len(files) == 8
+    assert len(files) == 9
     mod.main(["curves", *map(str, files)])
     rows = capsys.readouterr().out.strip().splitlines()[2:]
     assert [r.split("|")[1].strip() for r in rows] == [f.name for f in files]
     y = {r.split("|")[1].strip(): float(r.split("|")[2]) for r in rows}
     # interFoam's centroid: closer to MooNMD at the smaller steps (first order in dt)
     assert y["series_n40_cap0.25.csv"] < y["series_n40_cap1.csv"] < y["series_n40.csv"]
+    # and not with the mesh: h = 1/160 at half its capillary limit stays farther than 1/80 at
+    # a quarter of its limit
+    assert y["series_n160_cap0.5.csv"] > y["series_n80_cap0.25.csv"]
     with pytest.raises(SystemExit) as e:
         mod.main(["curves", str(DATA / "no-such.csv")])
     assert e.value.code == 2
