@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pfem2x import io as pio
+from pfem2x.jit import numba_version
 from pfem2x.scene import SceneError
 
 if TYPE_CHECKING:
@@ -440,6 +441,7 @@ def summary(
         "operators": dict(fem.COUNTERS),
         "auto_keys": dict(solver.auto_keys),
         "dolfinx_version": compat.dolfinx.__version__,
+        "numba_version": numba_version(),
         "mpi_size": comm.size,
         "metrics": solver.metrics(history),
     }

@@ -52,6 +52,7 @@ def test_summary(small_run):
         "startup_seconds",
         "status",
         "dolfinx_version",
+        "numba_version",
         "mpi_size",
         "metrics",
     ):
