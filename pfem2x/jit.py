@@ -2,7 +2,7 @@
 
 The kernels of :mod:`pfem2x.particles._kernels` are compiled by numba on first
 use (under a minute with numba 0.68 on a 2-core virtual machine; numba 0.56 took
-about 8) and cached on disk next to the source
+about 8 minutes) and cached on disk next to the source
 (``pfem2x/particles/__pycache__``, or under ``NUMBA_CACHE_DIR``); later runs
 load them in about a second. :func:`warm_up` compiles or loads every kernel a
 scene uses by running the particle layer once on a tiny mesh, and says so first
@@ -13,8 +13,9 @@ set-up and reports the seconds it took as ``compile_seconds``.
 The cache is cold when the marker :data:`MARKER` that a completed warm-up leaves
 next to the cache files is missing or older than ``_kernels.py``, when fewer
 cache index files are there than the warm-up left, or when the warm-up ran with
-another numba version (numba does not load code cached by another version). If the check is wrong, a
-warm-up that runs longer than :data:`LATE_NOTICE` seconds still announces itself.
+another numba version (numba does not load code cached by another version). If
+the check is wrong, a warm-up that runs longer than :data:`LATE_NOTICE` seconds
+still announces itself.
 """
 
 from __future__ import annotations
