@@ -364,10 +364,11 @@ def test_triangle_fast_path_equals_generic_loop(mode):
         x, cell = cl.x.copy(), cl.cells.copy()
         t_left, stage = np.full(n, dt), np.zeros(n)
         aux, acc, status = np.zeros((n, 2)), np.zeros((n, 2)), np.zeros(n, dtype=np.int8)
+        tables = [K.affine_p1(a, M.dofs, M.inv) for a in (un, du, q, dq)]
         steps = kern(
-            x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, True, 0.5, 0.1,
-            nsub, M.origin, M.inv, M.nbr, M.pshift, M.period, M.h, M.dofs, M.n_owned, du, dq,
-            blend,
+            x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, True, 0.5, 0.1,
+            nsub, M.origin, M.inv, M.nbr, M.pshift, M.period, M.h, M.dofs, M.n_owned, du,
+            blend, *tables,
         )  # fmt: skip
         results.append((steps, x, cell, t_left, aux, acc, stage, status))
     (s1, *a1), (s2, *a2) = results
@@ -375,3 +376,38 @@ def test_triangle_fast_path_equals_generic_loop(mode):
     assert (a1[-1] == K.ST_OUTFLOW).any()  # some particles leave on the way
     for v1, v2 in zip(a1, a2, strict=True):
         assert np.array_equal(v1, v2)
+
+
+@pytest.mark.parametrize(
+    "kind,bounds,cells",
+    [
+        ("interval", [[0.0], [2.0]], [7]),
+        ("rectangle", [[0.0, 0.0], [2.0, 1.0]], [6, 5]),
+        ("box", [[0.0, 0.0, 0.0], [1.0, 1.0, 2.0]], [3, 3, 4]),
+    ],
+)
+def test_affine_table_is_the_p1_field(kind, bounds, cells):
+    """The move's per-cell affine form of a P1 field gives the barycentric P1 value.
+
+    Each component at random points of every cell, from :func:`affine_p1` and
+    :func:`_eval_a` against :func:`evaluate_p1`, to round-off.
+    """
+    from pfem2x.particles import _kernels as K  # noqa: PLC0415
+
+    d = build_mesh(MPI.COMM_SELF, kind, bounds, cells)
+    cl = Cloud(d, {})
+    seed_cells(cl, 4, seed=3)
+    M = cl.pmesh.arrays
+    gdim = M.origin.shape[1]
+    rng = np.random.default_rng(7)
+    vals = rng.standard_normal((cl.pmesh.n_dofs, 3))
+    table = K.affine_p1(vals, M.dofs, M.inv)
+    assert table.shape == (len(M.dofs), 3, gdim + 1)
+    ref = K.evaluate_p1(cl.x, cl.cells, vals, M)
+    got = np.empty_like(ref)
+    x = np.zeros((cl.n, 3))
+    x[:, :gdim] = cl.x
+    for p in range(cl.n):
+        for j in range(3):
+            got[p, j] = K._eval_a(table, j, cl.cells[p], *x[p], M.origin, gdim)
+    assert np.abs(got - ref).max() < 1e-12 * np.abs(vals).max() * max(cells)

@@ -543,15 +543,67 @@ def advect_p1(P, un, un1, du, q, dq, S, M):
     x, cell, t_left, aux, acc, stage, status = P
     dt, theta, courant, gcourant, nsub, has_q, blend = S
     origin, inv, _, hc, dofs, nbr, pshift, period, n_owned = M
+    au = affine_p1(un, dofs, inv)
+    adu = affine_p1(du, dofs, inv) if blend else _no_table(du, inv)
+    aq = affine_p1(q, dofs, inv) if has_q else _no_table(q, inv)
+    adq = affine_p1(dq, dofs, inv) if has_q and blend else _no_table(dq, inv)
     if x.shape[1] == 2 and inv.shape[1] == 2:
         return _advect_p1_tri(
-            x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
-            gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, dq, blend,
+            x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, has_q, courant,
+            gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, blend,
+            au, adu, aq, adq,
         )  # fmt: skip
     return _advect_p1_any(
-        x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
-        gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, dq, blend,
+        x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, has_q, courant,
+        gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, blend,
+        au, adu, aq, adq,
     )  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy")
+def affine_p1(vals, dofs, inv):
+    """Each cell's piece of a P1 field ``vals (ndofs, k)`` as an affine function.
+
+    Returns ``A (cells, k, dim + 1)``: ``A[c, j, 0]`` is component ``j`` at the cell's
+    vertex 0 (``origin[c]``) and ``A[c, j, 1 + b]`` its derivative along axis ``b``, so
+    that the field at ``x`` in ``c`` is ``A[c, j, 0] + sum_b A[c, j, 1 + b] (x_b -
+    origin[c, b])`` (:func:`_eval_a`): the same function as the barycentric sum
+    ``sum_i lambda_i vals[dofs[c, i], j]``, its value at ``x`` by three products instead
+    of the barycentrics first, which shortens the chain of dependent operations of a
+    move's sub-step.
+    """
+    nc = dofs.shape[0]
+    k = vals.shape[1]
+    dim = inv.shape[1]
+    A = np.empty((nc, k, dim + 1))
+    for c in range(nc):
+        d0 = dofs[c, 0]
+        for j in range(k):
+            v0 = vals[d0, j]
+            A[c, j, 0] = v0
+            for b in range(dim):
+                g = 0.0
+                for i in range(dim):
+                    g += (vals[dofs[c, i + 1], j] - v0) * inv[c, i, b]
+                A[c, j, 1 + b] = g
+    return A
+
+
+@njit(cache=True, error_model="numpy")
+def _no_table(vals, inv):
+    """A placeholder for :func:`affine_p1`'s table of a field the move does not use."""
+    return np.zeros((1, vals.shape[1], inv.shape[1] + 1))
+
+
+@njit(cache=True, error_model="numpy")
+def _eval_a(A, j, c, x0, x1, x2, origin, dim):
+    """Component ``j`` at ``(x0, x1, x2)`` in cell ``c`` of a field tabled by :func:`affine_p1`."""
+    v = A[c, j, 0] + A[c, j, 1] * (x0 - origin[c, 0])
+    if dim > 1:
+        v += A[c, j, 2] * (x1 - origin[c, 1])
+    if dim > 2:
+        v += A[c, j, 3] * (x2 - origin[c, 2])
+    return v
 
 
 @njit(cache=True, error_model="numpy")
@@ -631,8 +683,9 @@ def _gradient_rates(un, du, dofs, inv, gcourant, blend, nsub, n):
 # numba compiles the 2D loop without the other dimensions' branches; _advect_p1_any reads it.
 @njit(cache=True, error_model="numpy")
 def _advect_p1_tri(
-    x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
-    gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, dq, blend,
+    x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, has_q, courant,
+    gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, blend,
+    au, adu, aq, adq,
 ):  # fmt: skip
     """:func:`advect_p1` for triangles in 2D (:func:`_advect_p1_dim` for a constant ``dim = 2``).
 
@@ -641,19 +694,20 @@ def _advect_p1_tri(
     ``theta = 0`` are done already).
     """
     fast = _path_tri(
-        x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, has_q, courant, gcourant,
-        nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, dq, blend,
+        x, cell, t_left, aux, acc, stage, status, dt, theta, un, has_q, courant, gcourant,
+        nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, blend, au, adu, aq, adq,
     )  # fmt: skip
     return fast + _advect_p1_dim(
-        x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
-        gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, dq, blend, 2,
+        x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, has_q, courant,
+        gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, blend,
+        au, adu, aq, adq, 2,
     )  # fmt: skip
 
 
 @njit(cache=True, error_model="numpy")
-def _path_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, has_q, courant,
-              gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, dq,
-              blend):  # fmt: skip
+def _path_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, has_q, courant,
+              gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, blend,
+              au, adu, aq, adq):  # fmt: skip
     """The regular path sub-steps of every particle in stage 0 (triangles, 2D).
 
     Each particle's sub-steps are those of :func:`_advect_p1_dim`, operation for
@@ -675,7 +729,7 @@ def _path_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, has_q,
     same barycentrics, facets and cells).
     """
     n = x.shape[0]
-    kq = q.shape[1]
+    kq = aq.shape[1]
     ak = np.zeros(kq)
     tol = 1e-14 * dt
     nsteps = 0
@@ -691,7 +745,6 @@ def _path_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, has_q,
         tl = t_left[p]
         a0 = aux[p, 0]
         a1 = aux[p, 1]
-        l0, l1, l2, _l3 = _bary_s(p0, p1, 0.0, c, origin, inv, 2)
         if has_q:
             for j in range(kq):
                 ak[j] = acc[p, j]
@@ -700,12 +753,12 @@ def _path_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, has_q,
             d0 = dofs[c, 0]
             d1 = dofs[c, 1]
             d2 = dofs[c, 2]
-            v0 = _eval_s(un, 0, d0, d1, d2, 0, l0, l1, l2, 0.0, 2)
-            v1 = _eval_s(un, 1, d0, d1, d2, 0, l0, l1, l2, 0.0, 2)
+            v0 = _eval_a(au, 0, c, p0, p1, 0.0, origin, 2)
+            v1 = _eval_a(au, 1, c, p0, p1, 0.0, origin, 2)
             if blend:
                 t0 = (dt - tl) / dt
-                z0 = _eval_s(du, 0, d0, d1, d2, 0, l0, l1, l2, 0.0, 2)
-                z1 = _eval_s(du, 1, d0, d1, d2, 0, l0, l1, l2, 0.0, 2)
+                z0 = _eval_a(adu, 0, c, p0, p1, 0.0, origin, 2)
+                z1 = _eval_a(adu, 1, c, p0, p1, 0.0, origin, 2)
                 v0 += t0 * z0
                 v1 += t0 * z1
             if nsub > 0:
@@ -757,20 +810,17 @@ def _path_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, has_q,
                 m0, m1, m2, _m3 = _bary_s(r0, r1, 0.0, cm, origin, inv, 2)
                 bv, best = _min_facet_tri(m0, m1, m2)
             if not bv >= -TOL:
-                _x0, _x1, _x2, cm, s, m0, m1, m2, _m3, ps0, ps1, _s2 = _walk_s(
+                r0, r1, _r2, cm, s, m0, m1, m2, _m3, ps0, ps1, _s2 = _walk_s(
                     r0, r1, 0.0, cm, origin, inv, nbr, pshift, period, 1000, 2
                 )
             ok = s == ST_OK
             if not ok:
                 break
-            e0 = dofs[cm, 0]
-            e1 = dofs[cm, 1]
-            e2 = dofs[cm, 2]
-            w0 = _eval_s(un, 0, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
-            w1 = _eval_s(un, 1, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
+            w0 = _eval_a(au, 0, cm, r0, r1, 0.0, origin, 2)
+            w1 = _eval_a(au, 1, cm, r0, r1, 0.0, origin, 2)
             if blend:
-                w0 += t1 * _eval_s(du, 0, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
-                w1 += t1 * _eval_s(du, 1, e0, e1, e2, 0, m0, m1, m2, 0.0, 2)
+                w0 += t1 * _eval_a(adu, 0, cm, r0, r1, 0.0, origin, 2)
+                w1 += t1 * _eval_a(adu, 1, cm, r0, r1, 0.0, origin, 2)
             # the corrector's walk (as the predictor's) from the predictor's cell, unless
             # that walk wrapped
             cs = cm if ps0 == 0.0 and ps1 == 0.0 else c
@@ -793,15 +843,12 @@ def _path_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, has_q,
             if not ok:
                 break
             if has_q:
-                f0 = dofs[cn, 0]
-                f1 = dofs[cn, 1]
-                f2 = dofs[cn, 2]
                 for j in range(kq):
-                    qv = _eval_s(q, j, d0, d1, d2, 0, l0, l1, l2, 0.0, 2)
-                    qe = _eval_s(q, j, f0, f1, f2, 0, k0, k1, k2, 0.0, 2)
+                    qv = _eval_a(aq, j, c, p0, p1, 0.0, origin, 2)
+                    qe = _eval_a(aq, j, cn, n0, n1, 0.0, origin, 2)
                     if blend:
-                        qv += t0 * _eval_s(dq, j, d0, d1, d2, 0, l0, l1, l2, 0.0, 2)
-                        qe += t1 * _eval_s(dq, j, f0, f1, f2, 0, k0, k1, k2, 0.0, 2)
+                        qv += t0 * _eval_a(adq, j, c, p0, p1, 0.0, origin, 2)
+                        qe += t1 * _eval_a(adq, j, cn, n0, n1, 0.0, origin, 2)
                     ak[j] += 0.5 * h * (qv + qe)
             a0 += n0 - s0 - p0
             a1 += n1 - s1 - p1
@@ -809,9 +856,6 @@ def _path_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, has_q,
             p1 = n1
             tl -= h
             c = cn
-            l0 = k0
-            l1 = k1
-            l2 = k2
             nsteps += 1
             if not tl > tol:
                 break
@@ -833,21 +877,23 @@ def _path_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, q, has_q,
 
 @njit(cache=True, error_model="numpy")
 def _advect_p1_any(
-    x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
-    gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, dq, blend,
+    x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, has_q, courant,
+    gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, blend,
+    au, adu, aq, adq,
 ):  # fmt: skip
     """:func:`advect_p1` in any dimension (:func:`_advect_p1_dim` for a run-time ``dim``)."""
     return _advect_p1_dim(
-        x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
-        gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, dq, blend,
-        inv.shape[1],
+        x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, has_q, courant,
+        gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, blend,
+        au, adu, aq, adq, inv.shape[1],
     )  # fmt: skip
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _advect_p1_dim(
-    x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, q, has_q, courant,
-    gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, dq, blend, dim,
+    x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, has_q, courant,
+    gcourant, nsub, origin, inv, nbr, pshift, period, hc, dofs, n_owned, du, blend,
+    au, adu, aq, adq, dim,
 ):  # fmt: skip
     """The loop of :func:`advect_p1` (inlined: a constant ``dim`` folds its branches).
 
@@ -860,7 +906,7 @@ def _advect_p1_dim(
     sh = np.zeros(3)
     y = np.empty(3)
     wth = np.empty((6, 3))
-    kq = q.shape[1]
+    kq = aq.shape[1]
     ak = np.zeros(kq)  # the source integral of the particle (k components)
     qv = np.zeros(kq)  # the source at the start of a sub-step
     t0 = t1 = 0.0  # the time fractions of a sub-step's ends (blend)
@@ -882,21 +928,19 @@ def _advect_p1_dim(
             a0 = aux[p, 0]
             a1 = aux[p, 1] if dim > 1 else 0.0
             a2 = aux[p, 2] if dim > 2 else 0.0
-            # (l0..l3) are the barycentrics of the particle in c (each walk returns them)
-            l0, l1, l2, l3 = _bary_s(p0, p1, p2, c, origin, inv, dim)
             while tl > 1e-14 * dt:
                 d0 = dofs[c, 0]
                 d1 = dofs[c, 1]
                 d2 = dofs[c, 2] if dim > 1 else 0
                 d3 = dofs[c, 3] if dim > 2 else 0
-                v0 = _eval_s(un, 0, d0, d1, d2, d3, l0, l1, l2, l3, dim)
-                v1 = _eval_s(un, 1, d0, d1, d2, d3, l0, l1, l2, l3, dim) if dim > 1 else 0.0
-                v2 = _eval_s(un, 2, d0, d1, d2, d3, l0, l1, l2, l3, dim) if dim > 2 else 0.0
+                v0 = _eval_a(au, 0, c, p0, p1, p2, origin, dim)
+                v1 = _eval_a(au, 1, c, p0, p1, p2, origin, dim) if dim > 1 else 0.0
+                v2 = _eval_a(au, 2, c, p0, p1, p2, origin, dim) if dim > 2 else 0.0
                 if blend:
                     t0 = (dt - tl) / dt
-                    z0 = _eval_s(du, 0, d0, d1, d2, d3, l0, l1, l2, l3, dim)
-                    z1 = _eval_s(du, 1, d0, d1, d2, d3, l0, l1, l2, l3, dim) if dim > 1 else 0.0
-                    z2 = _eval_s(du, 2, d0, d1, d2, d3, l0, l1, l2, l3, dim) if dim > 2 else 0.0
+                    z0 = _eval_a(adu, 0, c, p0, p1, p2, origin, dim)
+                    z1 = _eval_a(adu, 1, c, p0, p1, p2, origin, dim) if dim > 1 else 0.0
+                    z2 = _eval_a(adu, 2, c, p0, p1, p2, origin, dim) if dim > 2 else 0.0
                     v0 += t0 * z0
                     v1 += t0 * z1
                     v2 += t0 * z2
@@ -946,7 +990,7 @@ def _advect_p1_dim(
                 m3 = 0.0
                 ps0 = ps1 = ps2 = 0.0
                 for _r in range(12):
-                    _x0, _x1, _x2, cm, s, m0, m1, m2, m3, ps0, ps1, ps2 = _walk_s(
+                    mx0, mx1, mx2, cm, s, m0, m1, m2, m3, ps0, ps1, ps2 = _walk_s(
                         p0 + h * v0, p1 + h * v1, p2 + h * v2, c, origin, inv, nbr, pshift,
                         period, 1000, dim,
                     )  # fmt: skip
@@ -965,9 +1009,9 @@ def _advect_p1_dim(
                     # outflow / fail / remote from an owned cell: explicit Euler step
                     if has_q:
                         for j in range(kq):
-                            qv[j] = _eval_s(q, j, d0, d1, d2, d3, l0, l1, l2, l3, dim)
+                            qv[j] = _eval_a(aq, j, c, p0, p1, p2, origin, dim)
                             if blend:
-                                qv[j] += t0 * _eval_s(dq, j, d0, d1, d2, d3, l0, l1, l2, l3, dim)
+                                qv[j] += t0 * _eval_a(adq, j, c, p0, p1, p2, origin, dim)
                     n0, n1, n2, cn, s, l0, l1, l2, l3, s0, s1, s2 = _walk_s(
                         p0 + h * v0, p1 + h * v1, p2 + h * v2, c, origin, inv, nbr, pshift,
                         period, 1000, dim,
@@ -988,26 +1032,21 @@ def _advect_p1_dim(
                     if st == ST_OK:
                         continue
                     break
-                e0 = dofs[cm, 0]
-                e1 = dofs[cm, 1]
-                e2 = dofs[cm, 2] if dim > 1 else 0
-                e3 = dofs[cm, 3] if dim > 2 else 0
-                w0 = _eval_s(un, 0, e0, e1, e2, e3, m0, m1, m2, m3, dim)
-                w1 = _eval_s(un, 1, e0, e1, e2, e3, m0, m1, m2, m3, dim) if dim > 1 else 0.0
-                w2 = _eval_s(un, 2, e0, e1, e2, e3, m0, m1, m2, m3, dim) if dim > 2 else 0.0
+                w0 = _eval_a(au, 0, cm, mx0, mx1, mx2, origin, dim)
+                w1 = _eval_a(au, 1, cm, mx0, mx1, mx2, origin, dim) if dim > 1 else 0.0
+                w2 = _eval_a(au, 2, cm, mx0, mx1, mx2, origin, dim) if dim > 2 else 0.0
                 if blend:
                     t1 = (dt - tl + h) / dt
-                    w0 += t1 * _eval_s(du, 0, e0, e1, e2, e3, m0, m1, m2, m3, dim)
+                    w0 += t1 * _eval_a(adu, 0, cm, mx0, mx1, mx2, origin, dim)
                     if dim > 1:
-                        w1 += t1 * _eval_s(du, 1, e0, e1, e2, e3, m0, m1, m2, m3, dim)
+                        w1 += t1 * _eval_a(adu, 1, cm, mx0, mx1, mx2, origin, dim)
                     if dim > 2:
-                        w2 += t1 * _eval_s(du, 2, e0, e1, e2, e3, m0, m1, m2, m3, dim)
+                        w2 += t1 * _eval_a(adu, 2, cm, mx0, mx1, mx2, origin, dim)
                 if has_q:
                     for j in range(kq):
-                        qv[j] = _eval_s(q, j, d0, d1, d2, d3, l0, l1, l2, l3, dim)
+                        qv[j] = _eval_a(aq, j, c, p0, p1, p2, origin, dim)
                         if blend:
-                            qv[j] += t0 * _eval_s(dq, j, d0, d1, d2, d3, l0, l1, l2, l3, dim)
-                b0, b1, b2, b3 = l0, l1, l2, l3  # the start's barycentrics
+                            qv[j] += t0 * _eval_a(adq, j, c, p0, p1, p2, origin, dim)
                 # the corrector's walk from the predictor's cell (unless that walk wrapped)
                 cs = cm if ps0 == 0.0 and ps1 == 0.0 and ps2 == 0.0 else c
                 n0, n1, n2, cn, s, l0, l1, l2, l3, s0, s1, s2 = _walk_s(
@@ -1015,19 +1054,15 @@ def _advect_p1_dim(
                     cs, origin, inv, nbr, pshift, period, 1000, dim,
                 )  # fmt: skip
                 if has_q and s == ST_OK:
-                    f0 = dofs[cn, 0]
-                    f1 = dofs[cn, 1]
-                    f2 = dofs[cn, 2] if dim > 1 else 0
-                    f3 = dofs[cn, 3] if dim > 2 else 0
                     for j in range(kq):
-                        qe = _eval_s(q, j, f0, f1, f2, f3, l0, l1, l2, l3, dim)
+                        qe = _eval_a(aq, j, cn, n0, n1, n2, origin, dim)
                         if blend:
-                            qe += t1 * _eval_s(dq, j, f0, f1, f2, f3, l0, l1, l2, l3, dim)
+                            qe += t1 * _eval_a(adq, j, cn, n0, n1, n2, origin, dim)
                         ak[j] += 0.5 * h * (qv[j] + qe)
                 elif has_q and blend:  # the end's cell is not local: its time at the start
                     for j in range(kq):
-                        qe = _eval_s(q, j, d0, d1, d2, d3, b0, b1, b2, b3, dim)
-                        qe += t1 * _eval_s(dq, j, d0, d1, d2, d3, b0, b1, b2, b3, dim)
+                        qe = _eval_a(aq, j, c, p0, p1, p2, origin, dim)
+                        qe += t1 * _eval_a(adq, j, c, p0, p1, p2, origin, dim)
                         ak[j] += 0.5 * h * (qv[j] + qe)
                 elif has_q:
                     for j in range(kq):
