@@ -538,7 +538,8 @@ def advect_p1(P, un, un1, du, q, dq, S, M):
     ``P`` is a :class:`MoveState` (updated in place), ``S`` a
     :class:`MoveParams`, ``M`` the :class:`MeshArrays`. One loop
     (:func:`_advect_p1_dim`) serves every dimension; triangles in 2D get it
-    compiled for the constant ``dim = 2``.
+    compiled for the constant ``dim = 2``. The move evaluates ``un``, ``du``, ``q``
+    and ``dq`` from each cell's affine form (:func:`affine_p1`, tabled once per call).
     """
     x, cell, t_left, aux, acc, stage, status = P
     dt, theta, courant, gcourant, nsub, has_q, blend = S
@@ -603,17 +604,6 @@ def _eval_a(A, j, c, x0, x1, x2, origin, dim):
         v += A[c, j, 2] * (x1 - origin[c, 1])
     if dim > 2:
         v += A[c, j, 3] * (x2 - origin[c, 2])
-    return v
-
-
-@njit(cache=True, error_model="numpy")
-def _eval_s(vals, j, d0, d1, d2, d3, l0, l1, l2, l3, dim):
-    """Component ``j`` of a P1 field ``vals (ndofs, k)`` at barycentrics ``l`` on dofs ``d``."""
-    v = l0 * vals[d0, j] + l1 * vals[d1, j]
-    if dim > 1:
-        v += l2 * vals[d2, j]
-    if dim > 2:
-        v += l3 * vals[d3, j]
     return v
 
 
@@ -753,9 +743,6 @@ def _path_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, has_q, co
         first = True
         ok = True
         while True:
-            d0 = dofs[c, 0]
-            d1 = dofs[c, 1]
-            d2 = dofs[c, 2]
             v0 = _eval_a(au, 0, c, p0, p1, 0.0, origin, 2)
             v1 = _eval_a(au, 1, c, p0, p1, 0.0, origin, 2)
             if blend:
@@ -787,6 +774,9 @@ def _path_tri(x, cell, t_left, aux, acc, stage, status, dt, theta, un, has_q, co
                     if gr > rate:
                         rate = gr
                 elif gcourant > 0.0:
+                    d0 = dofs[c, 0]
+                    d1 = dofs[c, 1]
+                    d2 = dofs[c, 2]
                     gr = _grad_norm_s(un, d0, d1, d2, 0, c, inv, 2) / gcourant
                     if gr > rate:
                         rate = gr
@@ -945,10 +935,6 @@ def _advect_p1_dim(
             a1 = aux[p, 1] if dim > 1 else 0.0
             a2 = aux[p, 2] if dim > 2 else 0.0
             while tl > 1e-14 * dt:
-                d0 = dofs[c, 0]
-                d1 = dofs[c, 1]
-                d2 = dofs[c, 2] if dim > 1 else 0
-                d3 = dofs[c, 3] if dim > 2 else 0
                 v0 = _eval_a(au, 0, c, p0, p1, p2, origin, dim)
                 v1 = _eval_a(au, 1, c, p0, p1, p2, origin, dim) if dim > 1 else 0.0
                 v2 = _eval_a(au, 2, c, p0, p1, p2, origin, dim) if dim > 2 else 0.0
@@ -985,6 +971,10 @@ def _advect_p1_dim(
                             sp = sq
                     rate = np.sqrt(sp) / (courant * hc[c])
                     if gcourant > 0.0:
+                        d0 = dofs[c, 0]
+                        d1 = dofs[c, 1]
+                        d2 = dofs[c, 2] if dim > 1 else 0
+                        d3 = dofs[c, 3] if dim > 2 else 0
                         gr = _grad_norm_s(un, d0, d1, d2, d3, c, inv, dim) / gcourant
                         if gr > rate:
                             rate = gr
