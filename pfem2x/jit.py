@@ -1,21 +1,24 @@
-"""The particle kernels' numba compilation: warmed once at set-up, announced when cold.
+"""The particle kernels' numba compilation: done at set-up when the cache is cold, announced.
 
 The kernels of :mod:`pfem2x.particles._kernels` are compiled by numba on first
 use (under a minute with numba 0.68 on a 2-core virtual machine; numba 0.56 took
 about 8 minutes) and cached on disk next to the source
 (``pfem2x/particles/__pycache__``, or under ``NUMBA_CACHE_DIR``); later runs
-load them in about a second. :func:`warm_up` compiles or loads every kernel a
-scene uses by running the particle layer once on a tiny mesh, and says so first
-when the cache is cold. ``make setup`` runs it (``python -m pfem2x.jit``), so a
-first ``pfem2x run`` after installing starts at once; the runner calls it during
-set-up and reports the seconds it took as ``compile_seconds``.
+load them from there. On a cold cache :func:`warm_up` compiles every kernel a
+scene may use by running the particle layer once on a tiny mesh, and says so
+first. ``make setup`` runs it (``python -m pfem2x.jit``), so a first ``pfem2x
+run`` after installing starts at once; the runner calls it during set-up and
+reports the seconds it took as ``compile_seconds``. On a warm cache it does
+nothing: each kernel loads from the cache when a run first calls it, so a run
+loads only the specialisations it uses (a Rayleigh–Taylor run on one core starts
+about 0.25 s sooner than after loading all of them).
 
 The cache is cold when the marker :data:`MARKER` that a completed warm-up leaves
-next to the cache files is missing or older than ``_kernels.py``, when fewer
-cache index files are there than the warm-up left, or when the warm-up ran with
-another numba version (numba does not load code cached by another version). If
-the check is wrong, a warm-up that runs longer than :data:`LATE_NOTICE` seconds
-still announces itself.
+next to the cache files is missing or older than a kernel source (:data:`SOURCES`),
+when fewer cache index files are there than the warm-up left, or when the warm-up
+ran with another numba version (numba does not load code cached by another
+version). Should the check be wrong, the first kernel numba compiles during the
+run is announced (a numba event listener).
 """
 
 from __future__ import annotations
@@ -25,7 +28,6 @@ import hashlib
 import importlib.metadata
 import os
 import sys
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -35,12 +37,13 @@ from typing import Any
 MESSAGE = "compiling particle kernels (first run after install or a kernel change)..."
 
 KERNELS = Path(__file__).resolve().parent / "particles" / "_kernels.py"
+#: Every module of numba kernels that :func:`exercise_particles` compiles: a change to
+#: any of them makes the cache cold.
+SOURCES = (KERNELS, Path(__file__).resolve().parent / "physics" / "flow" / "_kernels.py")
 _TAG = f"py{sys.version_info[0]}{sys.version_info[1]}"
 #: Left next to the cache files by a completed warm-up: the number of index files and
 #: the numba version.
 MARKER = f"_kernels.warm.{_TAG}"
-#: Seconds after which a warm-up that the cache check took for warm announces itself.
-LATE_NOTICE = 10.0
 
 
 def cache_dir() -> Path:
@@ -94,7 +97,7 @@ def is_cold() -> bool:
     folder = cache_dir()
     marker = folder / MARKER
     try:
-        src = KERNELS.stat().st_mtime
+        src = max(p.stat().st_mtime for p in SOURCES)
         if marker.stat().st_mtime < src:
             return True
         fields = marker.read_text().split()
@@ -209,68 +212,91 @@ def _exercise_interface(points: Any) -> None:
     cell_velocity_kernel(np.zeros((3, 2)), dofs, np.zeros((1, 3, 2)))
 
 
+class _CompileNotice:
+    """Says :data:`MESSAGE` once, at the first kernel numba compiles instead of loading.
+
+    A numba event listener (``numba:compile`` fires on a cache miss only), registered
+    once per process; :func:`warm_up` re-arms it with its own ``say``.
+    """
+
+    _listener: Any = None
+
+    @classmethod
+    def arm(cls, say: Callable[[str], Any] | None) -> None:
+        """The next compile calls ``say`` (``None``: nothing)."""
+        if cls._listener is None and say is None:
+            return
+        from numba.core import event  # noqa: PLC0415
+
+        if cls._listener is None:
+
+            class Listener(event.Listener):
+                say: Callable[[str], Any] | None = None
+
+                def on_start(self, ev: Any) -> None:
+                    say, self.say = self.say, None
+                    if say is not None:
+                        say(MESSAGE)
+
+                def on_end(self, ev: Any) -> None:
+                    pass
+
+            cls._listener = Listener()
+            event.register("numba:compile", cls._listener)
+        cls._listener.say = say
+
+
 def warm_up(say: Callable[[str], Any] | None = None, comm: Any = None) -> float:
-    """Compile (cold cache) or load (warm cache) every particle kernel; announce a compile.
+    """Compile every particle kernel when the cache is cold, and announce it.
+
+    On a warm cache (rank 0's :func:`is_cold` false) nothing is compiled or loaded
+    here: each kernel loads from the cache when a run first calls it, and ``say``
+    is still called once should numba compile one after all (the check was wrong).
 
     Parameters
     ----------
     say:
-        Called with :data:`MESSAGE` before compiling when the cache is cold
-        (or once the warm-up has taken :data:`LATE_NOTICE` seconds); ``None``
-        keeps quiet. Pass a function that prints on rank 0 only.
+        Called with :data:`MESSAGE` before compiling; ``None`` keeps quiet. Pass a
+        function that prints on rank 0 only.
     comm:
         An MPI communicator (collective then): on a cold cache rank 0 compiles
         first and the other ranks load its cache files afterwards. Several
         processes that compile the same kernels at once write the same cache
         files, and numba does not lock them (a process may load another's code
-        for its own signature). On a warm cache (rank 0's :func:`is_cold`)
-        every rank loads at once. ``None``: this process alone.
+        for its own signature). ``None``: this process alone.
 
     Returns
     -------
     float
-        Wall seconds spent compiling or loading the kernels (on this rank,
-        waiting for rank 0 included).
+        Wall seconds spent compiling the kernels (on this rank, waiting for rank 0
+        included; on a warm cache the check's).
     """
     t0 = time.perf_counter()
-    told = threading.Event()
-
-    def tell() -> None:
-        if say is not None and not told.is_set():
-            told.set()
-            say(MESSAGE)
-
-    def run() -> None:
-        timer = None
-        if is_cold():
-            tell()
-        elif say is not None:
-            timer = threading.Timer(LATE_NOTICE, tell)
-            timer.daemon = True
-            timer.start()
-        try:
-            exercise_particles()
-        finally:
-            if timer is not None:
-                timer.cancel()
-        _mark_warm()
-
-    if comm is None or comm.size == 1:
-        run()
+    single = comm is None or comm.size == 1
+    cold = is_cold() if single else comm.bcast(is_cold() if comm.rank == 0 else None, root=0)
+    _CompileNotice.arm(say if not cold else None)
+    if not cold:
         return time.perf_counter() - t0
-    cold = comm.bcast(is_cold() if comm.rank == 0 else None, root=0)
+    if single:
+        if say is not None:
+            say(MESSAGE)
+        exercise_particles()
+        _mark_warm()
+        return time.perf_counter() - t0
     failed: BaseException | None = None
-    if comm.rank == 0 or not cold:  # warm: every rank loads the cache files at the same time
+    if comm.rank == 0:
         try:
-            run() if comm.rank == 0 else exercise_particles()
+            if say is not None:
+                say(MESSAGE)
+            exercise_particles()
+            _mark_warm()
         except Exception as exc:  # re-raised on every rank below, after the collective
             failed = exc
     from pfem2x.compat import MPI  # noqa: PLC0415
 
     if comm.allreduce(failed is not None, op=MPI.LOR):
-        where = " on rank 0" if cold else ""
-        raise RuntimeError(f"compiling the particle kernels failed{where}: {failed}") from failed
-    if cold and comm.rank != 0:
+        raise RuntimeError(f"compiling the particle kernels failed on rank 0: {failed}") from failed
+    if comm.rank != 0:
         exercise_particles()
     return time.perf_counter() - t0
 

@@ -40,14 +40,51 @@ def test_cold_cache_check_follows_marker_and_index_files(tmp_path, monkeypatch):
     assert jit.is_cold()
 
 
-def test_warm_up_on_a_warm_cache_is_quiet_and_quick():
+def test_warm_up_on_a_warm_cache_is_quiet_and_loads_nothing(monkeypatch):
     jit.warm_up()  # compiles if this checkout's cache is cold
     assert not jit.is_cold()
+
+    def exercise():
+        raise AssertionError("a warm cache is not exercised")
+
+    monkeypatch.setattr(jit, "exercise_particles", exercise)
     said = []
     t0 = time.perf_counter()
     seconds = jit.warm_up(said.append)
-    assert 0.0 < seconds <= time.perf_counter() - t0
-    assert said == [] or seconds > jit.LATE_NOTICE, said
+    assert 0.0 <= seconds <= time.perf_counter() - t0
+    assert said == []
+
+
+def test_a_compile_after_a_warm_check_is_announced_once():
+    """Should the cache check be wrong, the first kernel numba compiles says so."""
+    import numba
+
+    jit.warm_up()
+    said = []
+    jit.warm_up(said.append)
+
+    @numba.njit
+    def twice(x):
+        return 2 * x
+
+    @numba.njit
+    def thrice(x):
+        return 3 * x
+
+    assert said == []
+    assert twice(2) == 4 and thrice(2) == 6
+    assert said == [jit.MESSAGE]
+    assert twice(2.5) == 5.0  # (a second compile)
+    assert said == [jit.MESSAGE]
+    jit.warm_up(said.append)
+    jit.warm_up(None)  # quiet again
+
+    @numba.njit
+    def once(x):
+        return x
+
+    assert once(1) == 1
+    assert said == [jit.MESSAGE]
 
 
 def test_warm_up_announces_a_cold_cache(monkeypatch):
