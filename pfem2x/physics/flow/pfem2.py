@@ -175,7 +175,7 @@ from pfem2x import particles as P
 from pfem2x.compat import MPI, PETSc
 from pfem2x.mesh import Domain
 from pfem2x.physics.flow.balanced import JumpForce
-from pfem2x.physics.flow.interface import positive_fraction
+from pfem2x.physics.flow.loads import CellLoads
 from pfem2x.physics.flow.open_sides import OpenSides
 from pfem2x.physics.flow.passes import SDIRK_GAMMA, TwoPasses
 from pfem2x.physics.flow.pfem2_capillary import ParticleCapillary
@@ -384,42 +384,18 @@ class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers,
                 self.vort = RotationalViscousTerm(self.u, self.mu / self.rho, self.domain.table)
                 L_pc = L_pc + self.vort.term(r) * dx
             self.L_pc = compat.form(L_pc)
+        #: the source load and the consistent pressure's right-hand side cell by cell
+        #: (DG0 density, no surface tension: :mod:`.loads`), or None: by their forms
+        self.loads: CellLoads | None = None
+        if self.capillary is None and self.projection.cell_density is not None:
+            self.loads = CellLoads(self.V, self.Q, np.asarray(pr.gravity) * grav, self.jump)
+        #: that right-hand side by :attr:`loads` (no viscous term, no pressure condition)
+        self._pc_cellwise = self.loads is not None and self.vort is None and not self._bcs_p
         self.b_m = compat.create_vector(self.projection.L_mass)
         self._bc_rows: np.ndarray | None = None  # (owned rows set by the velocity's conditions)
         self._diag = compat.create_vector(self.projection.L_mass)
 
-    # -- phase / density --------------------------------------------------------
-    def _update_phase_fields(self) -> None:
-        """Cell fractions → DG0 density and viscosity; P1 phase and ``phi`` (collective)."""
-        c = self.cloud_
-        pr = self.problem
-        (_, r1, m1, _) = pr.phases[0]
-        if not pr.two_phase:
-            self.frac[:] = 1.0
-        else:
-            self._project_phase()
-            if self.dist is not None:
-                # linear-exact fit: a flat layer's distance gives a flat zero iso-line
-                P.project(c, "dist", self.dist, method="linear", empty="neighbours")
-            if self.jump is not None and self.level_set_density:
-                if self.conserve_volume:
-                    self._conserve_volume()
-                self.jump.update(self.dist.x.array)
-                # the density's interface is the balanced force's: the cut-cell fraction
-                self.frac[:] = positive_fraction(self.dist.x.array[self.dofmap[: self.n_owned]])
-            else:
-                if self.jump is not None:
-                    self.jump.update(self.dist.x.array)
-                self.frac[:] = self._particle_fraction()
-            if self.capillary is not None:
-                self._update_capillary()
-        (_, r2, m2, _) = pr.phases[1] if pr.two_phase else pr.phases[0]
-        f = self.frac
-        self.rho.x.array[self._cell_dofs] = r2 + (r1 - r2) * f
-        self.mu.x.array[self._cell_dofs] = m2 + (m1 - m2) * f
-        self.rho.x.scatter_forward()
-        self.mu.x.scatter_forward()
-
+    # -- phase / density (the fractions and fields: :mod:`.transfers`) ------------
     def cell_density(self) -> np.ndarray:
         """Density of each owned cell: the DG0 density of the cell's phase-1 fraction."""
         return self.rho.x.array[self._cell_dofs]
@@ -442,7 +418,10 @@ class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers,
         """``a = M_rho^-1 int (rho g - grad p).w`` at the nodes (needs ``b_mass``)."""
         if self.gravity_only:
             return
-        fem.assemble_vector(self.L_f, self.b_f)
+        if self.loads is not None:
+            self.loads.force(self.cell_density(), self.p, self.b_f)
+        else:
+            fem.assemble_vector(self.L_f, self.b_f)
         n = len(self.b_f.array_r)
         self.force.x.array[:n] = self.b_f.array_r / self.projection.b_mass.array_r
         self.force.x.scatter_forward()
@@ -618,7 +597,12 @@ class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers,
             self._operator_stale = False
         if self.vort is not None:
             self.vort.update()
-        proj.solve(self.L_pc, self.p)
+        if self._pc_cellwise:
+            with self.timer("assembly"):
+                self.loads.pressure(self.cell_density(), self.u, proj.b_p)  # type: ignore[union-attr]
+            proj.solve_assembled(self.p)
+        else:
+            proj.solve(self.L_pc, self.p)
         with self.timer("assembly"):
             self._update_force()
 

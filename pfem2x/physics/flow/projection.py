@@ -245,7 +245,7 @@ class PressureProjection:
     def solve(self, L: Any, x: Any) -> None:
         """Solve the pressure operator against the right-hand side form ``L`` into ``x``."""
         fem.assemble_vector(L, self.b_p, self.a_p, self.bcs_p)
-        self._solve_assembled(x)
+        self.solve_assembled(x)
 
     def solve_increment(self) -> None:
         """The pressure increment ``dp`` from the divergence of ``u_star``."""
@@ -255,10 +255,11 @@ class PressureProjection:
         fem.COUNTERS["vector_assemblies"] += 1
         self.D.mult(compat.petsc_vec(self.u_star), self.b_p)
         self.b_p.scale(-1.0 / float(self.dt_c.value))
-        self._solve_assembled(self.dp)
+        self.solve_assembled(self.dp)
 
-    def _solve_assembled(self, x: Any) -> None:
-        """Solve the pressure operator against :attr:`b_p` (assembled) into ``x``."""
+    def solve_assembled(self, x: Any) -> None:
+        """Solve the pressure operator against :attr:`b_p` as it stands (assembled, its
+        ghost rows added) into ``x`` (collective)."""
         if self.nullspace is not None:
             self.nullspace.remove(self.b_p)
         with self.timer("solve"):

@@ -33,6 +33,37 @@ class ParticleTransfers:
     #: the first of two passes is running (:mod:`.passes`)
     _first_pass: bool = False
 
+    def _update_phase_fields(self) -> None:
+        """Cell fractions → DG0 density and viscosity; P1 phase and ``phi`` (collective)."""
+        c = self.cloud_
+        pr = self.problem
+        (_, r1, m1, _) = pr.phases[0]
+        if not pr.two_phase:
+            self.frac[:] = 1.0
+        else:
+            self._project_phase()
+            if self.dist is not None:
+                # linear-exact fit: a flat layer's distance gives a flat zero iso-line
+                P.project(c, "dist", self.dist, method="linear", empty="neighbours")
+            if self.jump is not None and self.level_set_density:
+                if self.conserve_volume:
+                    self._conserve_volume()
+                self.jump.update(self.dist.x.array)
+                # the density's interface is the balanced force's: the cut-cell fraction
+                self.frac[:] = positive_fraction(self.dist.x.array[self.dofmap[: self.n_owned]])
+            else:
+                if self.jump is not None:
+                    self.jump.update(self.dist.x.array)
+                self.frac[:] = self._particle_fraction()
+            if self.capillary is not None:
+                self._update_capillary()
+        (_, r2, m2, _) = pr.phases[1] if pr.two_phase else pr.phases[0]
+        f = self.frac
+        self.rho.x.array[self._cell_dofs] = r2 + (r1 - r2) * f
+        self.mu.x.array[self._cell_dofs] = m2 + (m1 - m2) * f
+        self.rho.x.scatter_forward()
+        self.mu.x.scatter_forward()
+
     def _particle_fraction(self) -> np.ndarray:
         """Fraction of each owned cell's particles with ``phase = 1`` (empty: the P1 phase)."""
         c = self.cloud_
