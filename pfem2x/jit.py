@@ -173,6 +173,9 @@ def exercise_particles() -> None:
         P.project(cloud, "T", T_hat, method=method, empty="neighbours")
         P.project(cloud, "u", u_hat, method=method, empty="neighbours")
     P.project(cloud, "phase", T_hat, method="average", empty="keep")
+    together = [("T", T, "linear"), ("u", u_hat, "average"), ("phase", T_hat, "average")]
+    P.project_fields(cloud, together[:2], empty="neighbours")  # (one average field: its own
+    P.project_fields(cloud, together, empty="neighbours")  # specialisation, as two)
     mom = np.zeros((len(xv), g + 1))
     P.project(cloud, "_mom", mom, method="average", empty="neighbours")
     P.evaluate(cloud, T)

@@ -67,10 +67,10 @@ def test_solver_profile_times_every_kind_of_solve(monkeypatch, capsys):
         projection._DiscreteProjection, "solve", projection._DiscreteProjection.solve
     )
     mod = _module("solver_profile")
-    project, sort = P.project, Cloud.__dict__["sort_by_cell"]
+    project, sort = P.project_fields, Cloud.__dict__["sort_by_cell"]
     times = [
         "--time",
-        "pfem2x.particles:project",
+        "pfem2x.particles:project_fields",
         "--time",
         "pfem2x.particles.cloud:Cloud.sort_by_cell",
     ]
@@ -78,12 +78,12 @@ def test_solver_profile_times_every_kind_of_solve(monkeypatch, capsys):
     out = capsys.readouterr().out
     assert "cg/jacobi" in out and "discrete/gmres" in out and "solve timer" in out
     rows = {r.split("|")[1].strip(): r.split("|")[2:4] for r in out.splitlines() if ":" in r}
-    for name in ("pfem2x.particles:project", "pfem2x.particles.cloud:Cloud.sort_by_cell"):
+    for name in ("pfem2x.particles:project_fields", "pfem2x.particles.cloud:Cloud.sort_by_cell"):
         calls, secs = (float(v) for v in rows[name])
         assert calls > 10 and secs > 0.0
-    assert P.project is project and Cloud.__dict__["sort_by_cell"] is sort
+    assert P.project_fields is project and Cloud.__dict__["sort_by_cell"] is sort
     for bad in ("pfem2x.particles:no_such", "no_such_module:f", "pfem2x.particles"):
         assert mod.main(["rayleigh-taylor", "--variant", "small", "--time", bad]) == 2
         err = capsys.readouterr().err
         assert err.startswith("error: --time") and err.count("\n") == 1
-    assert P.project is project
+    assert P.project_fields is project

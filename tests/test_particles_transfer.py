@@ -6,7 +6,16 @@ import pytest
 from pfem2x import compat
 from pfem2x.compat import MPI, dolfinx
 from pfem2x.mesh import build_mesh
-from pfem2x.particles import Cloud, add_increment, evaluate, interpolate, project, seed_cells
+from pfem2x.particles import (
+    Cloud,
+    add_increment,
+    advect,
+    evaluate,
+    interpolate,
+    project,
+    project_fields,
+    seed_cells,
+)
 
 
 def _setup(comm, n=8, per_cell=8, seed=1, kind="rectangle"):
@@ -181,3 +190,45 @@ def test_written_out_linear_moments_equal_the_loop():
         a = moments(vals3[:, :k])
         assert np.array_equal(a[:, : 8 + k], a3[:, : 8 + k])  # weights, geometry, W*T
         assert np.array_equal(a[:, 8 + k :], a3[:, 11 : 11 + 2 * k])  # W*T*dx
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("kind", ["rectangle", "box"])
+@pytest.mark.parametrize("k_lin", [1, 2])
+def test_fields_projected_together_equal_one_by_one(comm, kind, k_lin):
+    """project_fields: one pass for a linear field and the averages (triangles) or field by
+    field (tetrahedra): every target the bits of its own projection, empty nodes included."""
+
+    d, cl, V = _setup(comm, n=7 if kind == "rectangle" else 3, per_cell=5, kind=kind)
+    g = d.gdim
+    W = compat.function_space(d.mesh, 1, (g,))
+    cl.add_field("phase", ())
+    rng = np.random.default_rng(comm.rank)
+    cl["T"] = np.sin(3.0 * cl.x[:, 0]) + rng.random(cl.n) * 0.1
+    cl["u"] = np.cos(cl.x[:, :g] * 2.0) + rng.random((cl.n, g)) * 0.1
+    cl["phase"] = (cl.x[:, 1] > 0.4).astype(float)
+    cl.remove(cl.x[:, 0] < 0.2)  # empty nodes: the neighbours' rule
+
+    def swirl(x, s):
+        c = x[:, :2] - 0.5
+        return np.column_stack([-c[:, 1], c[:, 0]] + [np.zeros(len(x))] * (g - 2))
+
+    advect(cl, swirl, 0.3, substeps=3)  # out of cell order, as after a move
+    lin_name, lin_space = ("T", V) if k_lin == 1 else ("u", W)
+    avg = [("phase", V)] + ([("u", W)] if k_lin == 1 else [("T", V)])
+    specs = [(lin_name, lin_space, "linear")] + [(n, s, "average") for n, s in avg]
+    one = []
+    for name, space, method in specs:
+        f = dolfinx.fem.Function(space)
+        f.x.array[:] = -7.0  # what empty nodes keep
+        project(cl, name, f, method=method, empty="neighbours")
+        one.append(f)
+    targets = [dolfinx.fem.Function(s) for _, s, _ in specs]
+    for f in targets:
+        f.x.array[:] = -7.0
+    stats = project_fields(
+        cl, [(n, f, m) for (n, _, m), f in zip(specs, targets, strict=True)], empty="neighbours"
+    )
+    assert len(stats) == 3 and stats[0].empty > 0
+    same = all(np.array_equal(a.x.array, b.x.array) for a, b in zip(one, targets, strict=True))
+    assert comm.allreduce(same, op=MPI.LAND)

@@ -24,6 +24,7 @@ from pfem2x.particles.transfer import (
     evaluate,
     interpolate,
     project,
+    project_fields,
 )
 
 __all__ = [
@@ -41,6 +42,7 @@ __all__ = [
     "locate_points",
     "nodal_values",
     "project",
+    "project_fields",
     "rebalance",
     "relocate",
     "seed_cells",

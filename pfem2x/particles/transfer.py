@@ -24,6 +24,7 @@ add, then forward), so every rank computes identical nodal values.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -35,7 +36,14 @@ from pfem2x.particles import _kernels as K
 from pfem2x.particles.advect import nodal_values
 from pfem2x.particles.cloud import Cloud
 
-__all__ = ["ProjectionStats", "add_increment", "evaluate", "interpolate", "project"]
+__all__ = [
+    "ProjectionStats",
+    "add_increment",
+    "evaluate",
+    "interpolate",
+    "project",
+    "project_fields",
+]
 
 
 @dataclass
@@ -99,22 +107,99 @@ def project(
     -------
     ProjectionStats
     """
-    if method not in ("linear", "average"):
-        raise ValueError(f"unknown projection method {method!r}")
-    if empty not in ("keep", "neighbours"):
-        raise ValueError(f"unknown empty-node rule {empty!r}")
+    _check_rules(method, empty)
     pm = cloud.pmesh
     vals = cloud.field2d(name)
     k = vals.shape[1]
     g = pm.gdim
     linear = method == "linear"
-    ncol = (3 + g + g * (g + 1) // 2 + k * (1 + g)) if linear else 1 + k
+    ncol = _columns(g, k, linear)
     vec = _work_vector(pm, ncol)
     acc = np.asarray(vec.array).reshape(-1, ncol)
     acc[:] = 0.0
     K.project_accumulate(cloud.x, cloud.cells, vals, pm.arrays, acc, linear)
     compat.scatter_reverse_add(vec)
     compat.scatter_forward(vec)
+    return _solve(cloud, acc, k, linear, target, empty, min_spread, max_extrap)
+
+
+def project_fields(
+    cloud: Cloud,
+    specs: Sequence[tuple[str, Any, str]],
+    empty: str = "keep",
+    min_spread: float = 1e-3,
+    max_extrap: float = 6.0,
+) -> list[ProjectionStats]:
+    """:func:`project` of several fields, in one pass over the particles where it can.
+
+    ``specs``: ``(name, target, method)`` per field. Every target gets the values
+    :func:`project` gives it, to the bit. One ``"linear"`` field of one or two
+    components and any ``"average"`` fields on 2D triangles share one pass over the
+    particles and one exchange of the moments (the flow's velocity, phase and
+    level set: about half the time of three projections); any other set is
+    projected field by field. Collective.
+
+    Returns
+    -------
+    list of ProjectionStats
+        One per field, in the order of ``specs``.
+    """
+    for _, _, method in specs:
+        _check_rules(method, empty)
+    pm = cloud.pmesh
+    lin = [i for i, sp in enumerate(specs) if sp[2] == "linear"]
+    k_lin = cloud.field2d(specs[lin[0]][0]).shape[1] if len(lin) == 1 else 0
+    if not (pm.gdim == 2 and pm.arrays.dofs.shape[1] == 3 and 1 <= k_lin <= 2 and len(specs) > 1):
+        return [project(cloud, n, t, m, empty, min_spread, max_extrap) for n, t, m in specs]
+    avg = [i for i in range(len(specs)) if i != lin[0]]
+    arrays = tuple(np.ascontiguousarray(cloud.field2d(specs[i][0])) for i in avg)
+    widths = [a.shape[1] for a in arrays]
+    n_lin = _columns(2, k_lin, True)
+    ncol = n_lin + sum(widths)
+    vec = _work_vector(pm, ncol)
+    acc = np.asarray(vec.array).reshape(-1, ncol)
+    acc[:] = 0.0
+    lin_vals = cloud.field2d(specs[lin[0]][0])
+    K.project_accumulate_tri_many(cloud.x, cloud.cells, lin_vals, arrays, pm.arrays, acc)
+    compat.scatter_reverse_add(vec)
+    compat.scatter_forward(vec)
+    out: list[Any] = [None] * len(specs)
+    target = specs[lin[0]][1]
+    own = np.ascontiguousarray(acc[:, :n_lin])
+    out[lin[0]] = _solve(cloud, own, k_lin, True, target, empty, min_spread, max_extrap)
+    o = n_lin
+    for i, kf in zip(avg, widths, strict=True):
+        own = np.concatenate([acc[:, :1], acc[:, o : o + kf]], axis=1)
+        out[i] = _solve(cloud, own, kf, False, specs[i][1], empty, min_spread, max_extrap)
+        o += kf
+    return out
+
+
+def _check_rules(method: str, empty: str) -> None:
+    if method not in ("linear", "average"):
+        raise ValueError(f"unknown projection method {method!r}")
+    if empty not in ("keep", "neighbours"):
+        raise ValueError(f"unknown empty-node rule {empty!r}")
+
+
+def _columns(g: int, k: int, linear: bool) -> int:
+    """The moments' columns of a projection of ``k`` components (:func:`K.project_accumulate`)."""
+    return (3 + g + g * (g + 1) // 2 + k * (1 + g)) if linear else 1 + k
+
+
+def _solve(
+    cloud: Cloud,
+    acc: np.ndarray,
+    k: int,
+    linear: bool,
+    target: Any,
+    empty: str,
+    min_spread: float,
+    max_extrap: float,
+) -> ProjectionStats:
+    """The nodal values from the summed moments ``acc`` into ``target`` (collective)."""
+    pm = cloud.pmesh
+    g = pm.gdim
     nd = acc.shape[0]
     filled = np.zeros(nd, dtype=bool)
     fb = np.zeros(nd, dtype=bool)

@@ -571,8 +571,7 @@ class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers,
             else:
                 self._blended_move(dt, *blend)
             self._seed_inflow()
-            self._project_velocity()
-            self._update_phase_fields()
+            self._update_phase_fields(velocity=True)
         self._mesh_step(dt)
         if self.capillary is not None and self.viscous and self.scene.flow.capillary_increment:
             self._capillary_increment(dt)

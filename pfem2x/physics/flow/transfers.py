@@ -33,18 +33,34 @@ class ParticleTransfers:
     #: the first of two passes is running (:mod:`.passes`)
     _first_pass: bool = False
 
-    def _update_phase_fields(self) -> None:
-        """Cell fractions → DG0 density and viscosity; P1 phase and ``phi`` (collective)."""
+    def _update_phase_fields(self, velocity: bool = False) -> None:
+        """Cell fractions → DG0 density and viscosity; P1 phase and ``phi`` (collective).
+
+        ``velocity``: step 2's velocity projection first (:meth:`_project_velocity`).
+        The plain average velocity, the phase and the level set ``dist`` are then
+        projected together (:func:`pfem2x.particles.project_fields`: one pass over
+        the particles, the same values).
+        """
         c = self.cloud_
         pr = self.problem
         (_, r1, m1, _) = pr.phases[0]
+        specs = []
+        if velocity and self._plain_velocity_method() == "average" and self.dist is not None:
+            specs.append(("u", self.u_hat, "average"))
+        elif velocity:
+            self._project_velocity()
         if not pr.two_phase:
             self.frac[:] = 1.0
         else:
-            self._project_phase()
+            phase = self._phase_projected()
+            if phase:
+                specs.append(("phase", self.phase, "average"))
             if self.dist is not None:
                 # linear-exact fit: a flat layer's distance gives a flat zero iso-line
-                P.project(c, "dist", self.dist, method="linear", empty="neighbours")
+                specs.append(("dist", self.dist, "linear"))
+            P.project_fields(c, specs, empty="neighbours")
+            if phase:
+                self.phi.x.array[:] = self.phase.x.array - 0.5
             if self.jump is not None and self.level_set_density:
                 if self.conserve_volume:
                     self._conserve_volume()
@@ -74,17 +90,14 @@ class ParticleTransfers:
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(n > 0, heavy[: self.n_owned] / np.maximum(n, 1), nodal)
 
-    def _project_phase(self) -> None:
-        """The P1 ``phase`` (``"average"``) and ``phi = phase - 1/2`` of the particles.
+    def _phase_projected(self) -> bool:
+        """Whether this pass projects the P1 ``phase`` (``"average"``) and ``phi = phase - 1/2``.
 
         Output, tips and new particles read them, and the particles' cell density
         (``flow.density = "particles"``) in empty cells; so with the level set's
         density the first of two passes skips them (the second overwrites them).
         """
-        if self._first_pass and self.level_set_density and self.jump is not None:
-            return
-        P.project(self.cloud_, "phase", self.phase, method="average", empty="neighbours")
-        self.phi.x.array[:] = self.phase.x.array - 0.5
+        return not (self._first_pass and self.level_set_density and self.jump is not None)
 
     def _conserve_volume(self) -> None:
         r"""Shift the level set ``dist`` so the heavy phase keeps its initial volume (collective).
@@ -192,13 +205,11 @@ class ParticleTransfers:
         by moving the light phase.
         """
         c = self.cloud_
-        meth = self.scene.method.projection
-        if meth == "auto":  # (the average is biased on an outflow side's one-sided nodes)
-            meth = "linear" if self.problem.outflow else "average"
         if self.affine:
             self._project_affine()
             return
         if not self.mass_weighted:
+            meth = self._plain_velocity_method()
             P.project(c, "u", self.u_hat, method=meth, empty="neighbours")
             return
         g = self.gdim
@@ -212,6 +223,15 @@ class ParticleTransfers:
         ok = mn[:, g] > 0.0
         uh = self.u_hat.x.array.reshape(-1, g)
         uh[ok] = mn[ok, :g] / mn[ok, g:]
+
+    def _plain_velocity_method(self) -> str | None:
+        """``method.projection`` of the plain velocity projection; None: affine or mass-weighted."""
+        if self.affine or self.mass_weighted:
+            return None
+        meth = self.scene.method.projection
+        if meth == "auto":  # (the average is biased on an outflow side's one-sided nodes)
+            meth = "linear" if self.problem.outflow else "average"
+        return meth
 
     def _project_affine(self) -> None:
         r"""Step 2, ``flow.affine``: :math:`u_i = \sum_p w_p (u_p + C_p(x_i - x_p)) / \sum_p w_p`.
