@@ -39,7 +39,13 @@ MESSAGE = "compiling particle kernels (first run after install or a kernel chang
 KERNELS = Path(__file__).resolve().parent / "particles" / "_kernels.py"
 #: Every module of numba kernels that :func:`exercise_particles` compiles: a change to
 #: any of them makes the cache cold.
-SOURCES = (KERNELS, Path(__file__).resolve().parent / "physics" / "flow" / "_kernels.py")
+SOURCES = (
+    KERNELS,
+    *(
+        Path(__file__).resolve().parent / "physics" / "flow" / f
+        for f in ("_kernels.py", "_load_kernels.py")
+    ),
+)
 _TAG = f"py{sys.version_info[0]}{sys.version_info[1]}"
 #: Left next to the cache files by a completed warm-up: the number of index files and
 #: the numba version.
@@ -200,12 +206,25 @@ def exercise_particles() -> None:
 
 def _exercise_interface(points: Any) -> None:
     """The flow's compiled kernels once: interface geometry (balanced gravity, cut-cell
-    densities) and the per-cell velocity measures of the diagnostics."""
+    densities), the per-pass loads of :mod:`pfem2x.physics.flow.loads` and the per-cell
+    velocity measures of the diagnostics."""
     import numpy as np  # noqa: PLC0415
 
-    from pfem2x.physics.flow._kernels import cell_velocity_kernel  # noqa: PLC0415
+    from pfem2x.physics.flow._kernels import (  # noqa: PLC0415
+        cell_velocity_kernel,
+        mark_mixed_cells,
+        particle_fraction_kernel,
+    )
+    from pfem2x.physics.flow._load_kernels import (  # noqa: PLC0415
+        force_load_kernel,
+        pressure_load_kernel,
+    )
     from pfem2x.physics.flow.balanced import closest_points  # noqa: PLC0415
-    from pfem2x.physics.flow.interface import positive_fraction, segment_distance  # noqa: PLC0415
+    from pfem2x.physics.flow.interface import (  # noqa: PLC0415
+        cut_segments,
+        positive_fraction,
+        segment_distance,
+    )
 
     seg = np.array([[[0.0, 0.5], [1.0, 0.5]]])
     closest_points(points, seg)
@@ -213,6 +232,25 @@ def _exercise_interface(points: Any) -> None:
     segment_distance(points, seg, cap=0.25)
     dofs = np.array([[0, 1, 2]], dtype=np.int32)
     cell_velocity_kernel(np.zeros((3, 2)), dofs, np.zeros((1, 3, 2)))
+    cut_segments(np.array([[1.0, -1.0, 0.5]]), np.zeros((1, 3, 2)))
+    mark_mixed_cells(np.array([1.0, -1.0, 0.5]), dofs, np.zeros(3))
+    particle_fraction_kernel(np.zeros(2, dtype=np.int32), np.ones(2), 1, np.zeros(3), dofs)
+    one, g = np.ones(1), np.zeros(2)
+    force_load_kernel(
+        np.zeros((1, 3, 2)), one, dofs, dofs, one, g, np.zeros(3), np.zeros(3), np.zeros(6)
+    )
+    pressure_load_kernel(
+        np.zeros((1, 3, 2)),
+        one,
+        dofs,
+        dofs,
+        one,
+        g,
+        np.zeros(3),
+        np.zeros(3),
+        np.zeros(6),
+        np.zeros(3),
+    )
 
 
 class _CompileNotice:

@@ -129,3 +129,63 @@ def test_closest_points_as_all_pairs(shape):
     want = c[np.arange(len(pts)), k]
     assert np.array_equal(closest_points(pts, segs), want)
     assert np.isnan(closest_points(pts[:2], segs[:0])).all()
+
+
+def test_cut_segments_as_the_vectorised_form():
+    """The compiled zero iso-line segments: those of the vectorised edge crossings, to the
+    bit (random triangles, signs at random, exact zeros on the positive side)."""
+    from pfem2x.physics.flow.interface import cut_segments
+
+    rng = np.random.default_rng(5)
+    xy = rng.random((4000, 3, 2))
+    vals = rng.standard_normal((4000, 3))
+    vals[rng.random((4000, 3)) < 0.1] = 0.0
+    pos = vals >= 0
+    cut = pos.any(axis=1) & ~pos.all(axis=1)
+    v, x, p = vals[cut], xy[cut], pos[cut]
+    pts = np.empty((len(v), 3, 2))
+    crosses = np.empty((len(v), 3), dtype=bool)
+    for e, (i, j) in enumerate(((0, 1), (1, 2), (2, 0))):
+        crosses[:, e] = p[:, i] != p[:, j]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.where(crosses[:, e], v[:, i] / (v[:, i] - v[:, j]), 0.0)
+        pts[:, e] = x[:, i] + s[:, None] * (x[:, j] - x[:, i])
+    idx = np.argsort(~crosses, axis=1, kind="stable")[:, :2]
+    want = np.take_along_axis(pts, idx[:, :, None], axis=1)
+    got = cut_segments(vals, xy)
+    assert 1000 < len(got) < 4000
+    assert np.array_equal(got, want)
+
+
+def test_mixed_cells_marked_as_the_vectorised_form():
+    from pfem2x.physics.flow._kernels import mark_mixed_cells
+
+    rng = np.random.default_rng(6)
+    phi = rng.standard_normal(500)
+    phi[rng.random(500) < 0.1] = 0.0
+    dofmap = rng.integers(0, 500, (700, 3)).astype(np.int32)
+    hc = (phi >= 0.0)[dofmap]
+    want = np.zeros(500)
+    want[dofmap[hc.any(axis=1) & ~hc.all(axis=1)]] = 1.0
+    got = np.zeros(500)
+    mark_mixed_cells(phi, dofmap, got)
+    assert 0 < want.sum() < 500 and np.array_equal(got, want)
+
+
+def test_particle_fraction_as_the_vectorised_form():
+    """Cells' mean particle phase (bincount's sums), empty cells the nodal mean."""
+    from pfem2x.physics.flow._kernels import particle_fraction_kernel
+
+    rng = np.random.default_rng(7)
+    n_owned, nodes = 300, 200
+    cells = rng.integers(0, n_owned + 20, 2000).astype(np.int32)  # some past the owned
+    cells[np.isin(cells, [3, 17, 42])] = 5  # empty cells
+    phase = (rng.random(2000) < 0.4).astype(float)
+    nodal = rng.random(nodes)
+    dofmap = rng.integers(0, nodes, (n_owned + 20, 3)).astype(np.int32)
+    n = np.bincount(cells, minlength=n_owned)[:n_owned]
+    heavy = np.bincount(cells, weights=phase, minlength=n_owned)
+    mean = nodal[dofmap[:n_owned]].mean(axis=1)
+    want = np.where(n > 0, heavy[:n_owned] / np.maximum(n, 1), mean)
+    got = particle_fraction_kernel(cells, phase, n_owned, nodal, dofmap)
+    assert (n == 0).sum() >= 3 and np.array_equal(got, want)

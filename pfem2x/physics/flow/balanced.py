@@ -60,7 +60,7 @@ import numpy as np
 import ufl
 
 from pfem2x import compat
-from pfem2x.physics.flow._kernels import closest_points_kernel
+from pfem2x.physics.flow._kernels import closest_points_kernel, mark_mixed_cells
 from pfem2x.physics.flow.interface import InterfaceGeometry
 
 __all__ = ["JumpForce", "closest_points"]
@@ -119,11 +119,9 @@ class JumpForce:
         itf = self.interface
         h = phi >= 0.0
         rho = np.where(h, self.rho1, self.rho2)
-        hc = h[itf.dofmap]
-        mixed = hc.any(axis=1) & ~hc.all(axis=1)
         mark = self._mark.x.array
         mark[:] = 0.0
-        mark[itf.dofmap[mixed]] = 1.0
+        mark_mixed_cells(phi, itf.dofmap, mark)  # the nodes of cells the densities differ on
         compat.scatter_reverse_add(self._mark.x)  # the owner learns of cells it lacks
         compat.scatter_forward(self._mark.x)
         near = (mark > 0.0) | (np.abs(phi) < self.band)

@@ -17,7 +17,11 @@ import ufl
 
 from pfem2x import compat
 from pfem2x.compat import MPI
-from pfem2x.physics.flow._kernels import positive_fraction_kernel, segment_distance_kernel
+from pfem2x.physics.flow._kernels import (
+    cut_segments_kernel,
+    positive_fraction_kernel,
+    segment_distance_kernel,
+)
 
 __all__ = ["InterfaceGeometry", "cut_segments", "positive_fraction", "segment_distance"]
 
@@ -52,19 +56,13 @@ def cut_segments(vals: np.ndarray, xy: np.ndarray) -> np.ndarray:
     Returns
     -------
     ``(m, 2, 2)`` segment end points, one per cut triangle.
+
+    Compiled (:func:`~pfem2x.physics.flow._kernels.cut_segments_kernel`): the
+    operations of the vectorised form, on the cut cells only.
     """
-    pos = vals >= 0
-    cut = pos.any(axis=1) & ~pos.all(axis=1)
-    v, x, p = vals[cut], xy[cut], pos[cut]
-    pts = np.empty((len(v), 3, 2))
-    crosses = np.empty((len(v), 3), dtype=bool)
-    for e, (i, j) in enumerate(_EDGES):
-        crosses[:, e] = p[:, i] != p[:, j]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = np.where(crosses[:, e], v[:, i] / (v[:, i] - v[:, j]), 0.0)
-        pts[:, e] = x[:, i] + s[:, None] * (x[:, j] - x[:, i])
-    idx = np.argsort(~crosses, axis=1, kind="stable")[:, :2]
-    return np.take_along_axis(pts, idx[:, :, None], axis=1)
+    return cut_segments_kernel(
+        np.ascontiguousarray(vals, dtype=np.float64), np.ascontiguousarray(xy, dtype=np.float64)
+    )
 
 
 def segment_distance(points: np.ndarray, segs: np.ndarray, cap: float | None = None) -> np.ndarray:
@@ -125,7 +123,9 @@ class InterfaceGeometry:
         self.coords = coords
         self.dofmap = dofmap
         self.n_owned = n_owned
-        self.cell_xy = coords[dofmap[:n_owned]][:, :, :2]
+        #: ``(n_owned, 3, 2)`` the owned cells' vertex coordinates (contiguous: the
+        #: compiled kernels take it without a copy)
+        self.cell_xy = np.ascontiguousarray(coords[dofmap[:n_owned]][:, :, :2])
         self.eps = eps
 
     @property

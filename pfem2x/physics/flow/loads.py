@@ -13,8 +13,8 @@ every pass are sums over the cells of one constant per cell times
   :math:`\int(\nabla u:\nabla u^T)\,r + \rho_c^{-1} b_h\cdot\nabla r`.
 
 :class:`CellLoads` computes them by one pass over the owned cells (numba,
-:func:`~pfem2x.physics.flow._kernels.force_load_kernel` and
-:func:`~pfem2x.physics.flow._kernels.pressure_load_kernel`) and adds the ghost rows
+:func:`~pfem2x.physics.flow._load_kernels.force_load_kernel` and
+:func:`~pfem2x.physics.flow._load_kernels.pressure_load_kernel`) and adds the ghost rows
 to their owners as DOLFINx's assembly does: the same vectors as the forms' to
 round-off (the sums are taken in another order), without packing the forms'
 coefficients and running their generated kernels.
@@ -29,7 +29,7 @@ import numpy as np
 from pfem2x import compat, fem
 from pfem2x.compat import PETSc
 from pfem2x.mesh import basis_gradients, geometry_table
-from pfem2x.physics.flow._kernels import force_load_kernel, pressure_load_kernel
+from pfem2x.physics.flow._load_kernels import force_load_kernel, pressure_load_kernel
 
 __all__ = ["CellLoads"]
 

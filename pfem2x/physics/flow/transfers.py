@@ -16,6 +16,7 @@ import numpy as np
 
 from pfem2x import particles as P
 from pfem2x.compat import MPI
+from pfem2x.physics.flow._kernels import particle_fraction_kernel
 from pfem2x.physics.flow.interface import positive_fraction
 
 __all__ = ["ParticleTransfers"]
@@ -83,12 +84,9 @@ class ParticleTransfers:
     def _particle_fraction(self) -> np.ndarray:
         """Fraction of each owned cell's particles with ``phase = 1`` (empty: the P1 phase)."""
         c = self.cloud_
-        cells = c.cells
-        n = np.bincount(cells, minlength=self.n_owned)[: self.n_owned]
-        heavy = np.bincount(cells, weights=c.field("phase"), minlength=self.n_owned)
-        nodal = self.phase.x.array[self.dofmap[: self.n_owned]].mean(axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(n > 0, heavy[: self.n_owned] / np.maximum(n, 1), nodal)
+        return particle_fraction_kernel(
+            c.cells, c.field("phase"), self.n_owned, self.phase.x.array, self.dofmap
+        )
 
     def _phase_projected(self) -> bool:
         """Whether this pass projects the P1 ``phase`` (``"average"``) and ``phi = phase - 1/2``.
