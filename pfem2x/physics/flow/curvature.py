@@ -24,7 +24,7 @@ from pfem2x.physics.flow._kernels import (
     closest_pairs_within_kernel,
     pairs_within_kernel,
 )
-from pfem2x.physics.flow.interface import InterfaceGeometry, segment_distance
+from pfem2x.physics.flow.interface import InterfaceGeometry, cut_segments, segment_distance
 
 __all__ = [
     "circle_distance",
@@ -68,16 +68,7 @@ def oriented_segments(
     m = len(cut)
     if m == 0:
         return (np.zeros((0, 2, 2)), cut) + ((np.zeros((0, 2)),) if normals else ())
-    crosses = np.empty((m, 3), dtype=bool)
-    pts = np.empty((m, 3, 2))
-    p = pos[cut]
-    for e, (i, j) in enumerate(((0, 1), (1, 2), (2, 0))):
-        crosses[:, e] = p[:, i] != p[:, j]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = np.where(crosses[:, e], v[:, i] / (v[:, i] - v[:, j]), 0.0)
-        pts[:, e] = x[:, i] + s[:, None] * (x[:, j] - x[:, i])
-    idx = np.argsort(~crosses, axis=1, kind="stable")[:, :2]
-    segs = np.take_along_axis(pts, idx[:, :, None], axis=1)
+    segs = cut_segments(v, x)  # (every cell of v is cut: one segment each, in order)
     # the gradient of the P1 field on each cell: J^T grad = (v1 - v0, v2 - v0)
     J = np.stack([x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]], axis=1)  # rows: edge vectors
     dv = np.stack([v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]], axis=1)
