@@ -411,3 +411,24 @@ def test_affine_table_is_the_p1_field(kind, bounds, cells):
         for j in range(3):
             got[p, j] = K._eval_a(table, j, cl.cells[p], *x[p], M.origin, gdim)
     assert np.abs(got - ref).max() < 1e-12 * np.abs(vals).max() * max(cells)
+
+
+def test_affine_table_of_triangles_written_out_to_the_bit():
+    """The triangles' table (loops over the axes written out) holds the bits of the generic
+    loop's sums from 0.0, signed zeros included."""
+    from pfem2x.particles import _kernels as K  # noqa: PLC0415
+
+    d = build_mesh(MPI.COMM_SELF, "rectangle", [[0.0, 0.0], [1.0, 2.0]], [7, 9])
+    M = Cloud(d, {}).pmesh.arrays
+    rng = np.random.default_rng(8)
+    vals = rng.standard_normal((len(M.dofs) + 20, 2))
+    vals[::5] = -0.0
+    vals[1::5] = 0.0
+    table = K.affine_p1(vals, M.dofs, M.inv)
+    v = vals[M.dofs]  # (cells, 3, k)
+    e1, e2 = v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]
+    want = np.empty_like(table)
+    want[:, :, 0] = v[:, 0]
+    for b in range(2):
+        want[:, :, 1 + b] = (0.0 + e1 * M.inv[:, 0, b, None]) + e2 * M.inv[:, 1, b, None]
+    assert np.array_equal(table.view(np.int64), want.view(np.int64))
