@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from pfem2x import compat, fem
+from pfem2x import cellwise, compat, fem
 from pfem2x.compat import PETSc
 from pfem2x.mesh import basis_gradients, geometry_table
 from pfem2x.physics.flow._load_kernels import force_load_kernel, pressure_load_kernel
@@ -57,7 +57,7 @@ class CellLoads:
         self._vdofs = np.ascontiguousarray(compat.dofmap_array(V)[:n])
         self._g = np.ascontiguousarray(gravity, dtype=np.float64)
         self._jump = jump
-        self._zero = np.zeros(len(compat.dolfinx.fem.Function(Q).x.array))
+        self._zero = np.zeros(cellwise.local_size(Q))  # q = Pi = 0 without the jump force
 
     def _q_pi(self) -> tuple[np.ndarray, np.ndarray]:
         if self._jump is None:

@@ -37,31 +37,33 @@ class ParticleTransfers:
     def _update_phase_fields(self, velocity: bool = False) -> None:
         """Cell fractions → DG0 density and viscosity; P1 phase and ``phi`` (collective).
 
-        ``velocity``: step 2's velocity projection first (:meth:`_project_velocity`).
-        The plain average velocity, the phase and the level set ``dist`` are then
-        projected together (:func:`pfem2x.particles.project_fields`: one pass over
-        the particles, the same values).
+        ``velocity``: step 2's velocity projection first. The plain velocity, the
+        phase and the level set ``dist`` are projected by one call
+        (:func:`pfem2x.particles.project_fields`: one pass over the particles where it
+        can, the same values); the affine or mass-weighted velocity before it
+        (:meth:`_project_velocity`).
         """
         c = self.cloud_
         pr = self.problem
         (_, r1, m1, _) = pr.phases[0]
         specs = []
-        if velocity and self._plain_velocity_method() == "average" and self.dist is not None:
-            specs.append(("u", self.u_hat, "average"))
+        if velocity and not (self.affine or self.mass_weighted):
+            specs.append(("u", self.u_hat, self._plain_velocity_method()))
         elif velocity:
             self._project_velocity()
+        phase = pr.two_phase and self._phase_projected()
+        if phase:
+            specs.append(("phase", self.phase, "average"))
+        if pr.two_phase and self.dist is not None:
+            # linear-exact fit: a flat layer's distance gives a flat zero iso-line
+            specs.append(("dist", self.dist, "linear"))
+        if specs:
+            P.project_fields(c, specs, empty="neighbours")
+        if phase:
+            self.phi.x.array[:] = self.phase.x.array - 0.5
         if not pr.two_phase:
             self.frac[:] = 1.0
         else:
-            phase = self._phase_projected()
-            if phase:
-                specs.append(("phase", self.phase, "average"))
-            if self.dist is not None:
-                # linear-exact fit: a flat layer's distance gives a flat zero iso-line
-                specs.append(("dist", self.dist, "linear"))
-            P.project_fields(c, specs, empty="neighbours")
-            if phase:
-                self.phi.x.array[:] = self.phase.x.array - 0.5
             if self.jump is not None and self.level_set_density:
                 if self.conserve_volume:
                     self._conserve_volume()
@@ -194,6 +196,9 @@ class ParticleTransfers:
     def _project_velocity(self) -> None:
         """Step 2 for ``u``: plain projection, or mass-weighted (``flow.mass_weighted``).
 
+        A pass projects the plain velocity with the phase fields
+        (:meth:`_update_phase_fields`), the others by this method.
+
         Mass-weighted: ``u_i = sum w_p rho_p u_p / sum w_p rho_p`` (``"average"``
         weights ``w_p = N_i(x_p)``; a linear fit of the step in ``rho`` could
         leave ``[rho_light, rho_heavy]``). At a node of the interface the heavy
@@ -222,10 +227,8 @@ class ParticleTransfers:
         uh = self.u_hat.x.array.reshape(-1, g)
         uh[ok] = mn[ok, :g] / mn[ok, g:]
 
-    def _plain_velocity_method(self) -> str | None:
-        """``method.projection`` of the plain velocity projection; None: affine or mass-weighted."""
-        if self.affine or self.mass_weighted:
-            return None
+    def _plain_velocity_method(self) -> str:
+        """``method.projection`` of the plain velocity projection (``"auto"`` resolved)."""
         meth = self.scene.method.projection
         if meth == "auto":  # (the average is biased on an outflow side's one-sided nodes)
             meth = "linear" if self.problem.outflow else "average"
