@@ -295,6 +295,7 @@ def test_bad_frame_tables(tmp_path, extra, needles):
 def test_check_names_the_frame_keys_the_run_takes():
     assert load_scene("rayleigh-taylor").frame_keys == (
         "flow.predictor_particles = 0.5",
+        "flow.predictor_substeps = 2",
         "flow.predictor_rtol = 0.0001",
         "flow.predictor_divergence_rtol = 0.2",
         "flow.rtol = 1e-06",
@@ -319,7 +320,7 @@ def test_check_names_the_frame_keys_the_run_takes():
     )
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip().endswith(
-        "[frames.lagrangian]: flow.predictor_rtol = 0.0001, "
+        "[frames.lagrangian]: flow.predictor_substeps = 2, flow.predictor_rtol = 0.0001, "
         "flow.predictor_divergence_rtol = 0.2, flow.rtol = 1e-06; "
         'auto: flow.pressure_step = "increment", flow.divergence_rtol = 0.05, '
         'flow.pass_pressure = "increment"'
