@@ -14,7 +14,7 @@ from typing import Any
 from pfem2x import compat
 from pfem2x.compat import PETSc
 
-__all__ = ["COUNTERS", "LinearSolver", "assemble_matrix", "reset_counters"]
+__all__ = ["COUNTERS", "LinearSolver", "assemble_matrix", "divergence_text", "reset_counters"]
 
 #: Process-wide counts: ``matrix_assemblies``, ``vector_assemblies``, ``solves``
 #: (and ``error_integrals``: exact-solution error integrals of the flow diagnostics).
@@ -57,6 +57,38 @@ def _options_unless_named(options: dict[str, str]) -> None:
     for key, value in options.items():
         if not opts.hasName(key):
             opts[key] = value
+
+
+#: Why a KSP stopped short, by PETSc's (negative) converged reason
+_DIVERGED = {
+    -3: "no convergence in {its} iterations",
+    -4: "the residual grew past the divergence tolerance",
+    -5: "breakdown",
+    -7: "a non-symmetric operator or preconditioner for CG",
+    -8: "an indefinite preconditioner",
+    -9: "NaN/Inf in the system",
+    -10: "an indefinite operator",
+    -11: "the preconditioner failed",
+}
+
+
+def divergence_text(reason: int, iterations: int) -> str:
+    """What a KSP's negative converged ``reason`` means, with the reason's number.
+
+    Parameters
+    ----------
+    reason
+        ``KSP.getConvergedReason()`` of a solve that failed (< 0).
+    iterations
+        The solve's iteration count (named for an iteration limit).
+
+    Returns
+    -------
+    str
+        e.g. ``"no convergence in 5000 iterations, PETSc reason -3"``.
+    """
+    what = _DIVERGED.get(reason, "stopped")
+    return f"{what.format(its=iterations)}, PETSc reason {reason}"
 
 
 class LinearSolver:
@@ -140,7 +172,7 @@ class LinearSolver:
         reason = self.ksp.getConvergedReason()
         self.last_iterations = int(self.ksp.getIterationNumber())
         if reason < 0:
-            what = "NaN/Inf in the system" if reason == -9 else f"PETSc reason {reason}"
+            what = divergence_text(reason, self.last_iterations)
             raise FloatingPointError(f"linear solver diverged ({what})")
         return self.last_iterations
 

@@ -64,6 +64,28 @@ def solve(A, b) -> tuple[int, float]:
         x.destroy()
 
 
+def test_a_solve_that_stops_short_says_why():
+    """The iteration limit and a NaN are named in the error, with PETSc's reason."""
+    A, b = poisson(32)
+    solver = fem.LinearSolver(A, "cg", "jacobi", rtol=1e-12)
+    solver.ksp.setTolerances(max_it=3)
+    x = b.duplicate()
+    try:
+        with pytest.raises(
+            FloatingPointError,
+            match=r"no convergence in 3 iterations, PETSc "
+            r"reason -3",
+        ):
+            solver.solve(b, x, guess=False)
+        b.set(float("nan"))
+        with pytest.raises(FloatingPointError, match=r"NaN/Inf in the system, PETSc reason -9"):
+            solver.solve(b, x, guess=False)
+    finally:
+        solver.destroy()
+        x.destroy()
+    assert fem.divergence_text(-99, 7) == "stopped, PETSc reason -99"
+
+
 def test_one_solve_with_its_own_tolerance():
     """``solve(..., rtol=r)``: that solve stops at r, the solver keeps its own tolerance."""
     A, b = poisson(32)

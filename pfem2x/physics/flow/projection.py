@@ -428,7 +428,8 @@ class _DiscreteProjection:
         ksp.solve(b, x)
         reason = ksp.getConvergedReason()
         if reason < 0 and reason not in self.STALLED:
-            raise FloatingPointError(f"linear solver diverged (PETSc reason {reason})")
+            what = fem.divergence_text(reason, int(ksp.getIterationNumber()))
+            raise FloatingPointError(f"linear solver diverged ({what})")
         return int(ksp.getIterationNumber())
 
 
