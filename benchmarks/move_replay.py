@@ -1,14 +1,15 @@
 """The flow frame's particle moves of a real run, saved once and re-run on any checkout.
 
 ``save`` runs a scene (one process, outputs off) and saves the inputs of the
-move kernel (``advect_p1``: the particles' state, the velocities, the sources,
-the mesh arrays) of the moves ``--first`` to ``--first + --count - 1`` of the
-run into one file. ``replay`` re-runs those moves with the kernel of the
-checkout it is started from, each from a copy of its saved state, and prints
-per move the particles, the sub-steps, the median time of ``--repeat`` runs
-and the sub-steps per second; ``--json`` writes them, ``--compare FILE`` also
-checks that every move's end state equals the one in that earlier replay's
-``--state`` file to the bit (exit status 1 when one does not).
+move kernel (``advect_p1_tables``: the particles' state, the velocities, the
+fields' per-cell tables, the mesh arrays) of the moves ``--first`` to
+``--first + --count - 1`` of the run into one file. ``replay`` re-runs those
+moves with the kernel of the checkout it is started from, each from a copy of
+its saved state, and prints per move the particles, the sub-steps, the median
+time of ``--repeat`` runs and the sub-steps per second (the tables are the
+saved ones: their making is not timed); ``--json`` writes them, ``--compare
+FILE`` also checks that every move's end state equals the one in that earlier
+replay's ``--state`` file to the bit (exit status 1 when one does not).
 
     python benchmarks/move_replay.py save rayleigh-taylor moves.pkl --first 40 --count 8
     python benchmarks/move_replay.py replay moves.pkl --state now.npz
@@ -48,34 +49,35 @@ def save(
     import pfem2x.particles._kernels as K  # noqa: PLC0415
     from pfem2x import cli  # noqa: PLC0415
 
-    orig = K.advect_p1
+    orig = K.advect_p1_tables
     saved: list = []
     calls = [0]
 
-    def wrapped(P, un, un1, du, q, dq, S, M):  # noqa: N803
+    def wrapped(P, un, un1, du, T, S, M):  # noqa: N803
         if first <= calls[0] < first + count:
             saved.append(
                 (
                     tuple(np.array(a) for a in P),
-                    *(np.array(a) for a in (un, un1, du, q, dq)),
+                    *(np.array(a) for a in (un, un1, du)),
+                    tuple(np.array(a) for a in T),
                     tuple(S),
                     tuple(np.array(a) if isinstance(a, np.ndarray) else a for a in M),
                 )
             )
         calls[0] += 1
-        return orig(P, un, un1, du, q, dq, S, M)
+        return orig(P, un, un1, du, T, S, M)
 
     args = ["run", scene, "--quiet", "--overwrite"]
     if variant:
         args += ["--variant", variant]
     for kv in (*QUIET, *extra):
         args += ["--set", kv]
-    K.advect_p1 = wrapped
+    K.advect_p1_tables = wrapped
     try:
         with tempfile.TemporaryDirectory() as tmp:
             code = cli.main([*args, "--out", str(Path(tmp) / "run")])
     finally:
-        K.advect_p1 = orig
+        K.advect_p1_tables = orig
     if code:
         if code != 2:  # exit 2: the run said what was wrong with its input
             print(f"error: the run of {scene} failed (exit {code})", file=sys.stderr)
@@ -105,10 +107,10 @@ def replay(
         moves = pickle.load(f)
 
     def run(i: int) -> tuple[float, int, tuple]:
-        P, un, un1, du, q, dq, S, M = moves[i]
+        P, un, un1, du, T, S, M = moves[i]
         st = K.MoveState(*(a.copy() for a in P))
         t0 = time.perf_counter()
-        n = K.advect_p1(st, un, un1, du, q, dq, K.MoveParams(*S), K.MeshArrays(*M))
+        n = K.advect_p1_tables(st, un, un1, du, T, K.MoveParams(*S), K.MeshArrays(*M))
         return time.perf_counter() - t0, int(n), st
 
     run(0)  # load / compile the kernel
@@ -119,7 +121,7 @@ def replay(
             t, n, st = run(i)
             times.append(t)
         t = float(np.median(times))
-        S = K.MoveParams(*moves[i][6])
+        S = K.MoveParams(*moves[i][5])
         rows.append(
             {
                 "move": i,

@@ -87,3 +87,38 @@ def test_seeding_uniform_in_simplices(comm):
             xs = cl.x[cl.cells == c]
             cen = pm.coords[c].mean(axis=0)
             assert np.abs(xs.mean(axis=0) - cen).max() < 4 * pm.h[c] / np.sqrt(len(xs))
+
+
+@pytest.mark.mpi
+def test_a_moves_tables_are_made_once_for_all_its_rounds(comm, monkeypatch):
+    """Particles handed to another rank go on in further rounds of the compiled move; the
+    fields' per-cell tables (which depend on the fields and the mesh only) are made once
+    per move."""
+    from pfem2x.particles import _kernels as K  # noqa: PLC0415
+
+    d = build_mesh(comm, "rectangle", [[0.0, 0.0], [1.0, 1.0]], [12, 12])
+    V = compat.function_space(d.mesh, 1, (2,))
+    u = dolfinx.fem.Function(V)
+    u.interpolate(lambda x: np.stack([-(x[1] - 0.5), x[0] - 0.5]))
+    cl = Cloud(d, {})
+    seed_cells(cl, 5, seed=11)
+    calls = {"tables": 0, "rounds": 0}
+    made, moved = K.move_tables, K.advect_p1_tables
+
+    def tables(*args):
+        calls["tables"] += 1
+        return made(*args)
+
+    def rounds(*args):
+        calls["rounds"] += 1
+        return moved(*args)
+
+    monkeypatch.setattr(K, "move_tables", tables)
+    monkeypatch.setattr(K, "advect_p1_tables", rounds)
+    st = advect(cl, u, 0.8)
+    sent = comm.allreduce(st.sent, op=MPI.SUM)
+    most_rounds = comm.allreduce(calls["rounds"], op=MPI.MAX)
+    most_tables = comm.allreduce(calls["tables"], op=MPI.MAX)
+    assert most_tables == 1 and most_rounds >= 1
+    if comm.size > 1:
+        assert sent > 0 and most_rounds > 1

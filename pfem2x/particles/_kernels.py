@@ -539,15 +539,38 @@ def advect_p1(P, un, un1, du, q, dq, S, M):
     :class:`MoveParams`, ``M`` the :class:`MeshArrays`. One loop
     (:func:`_advect_p1_dim`) serves every dimension; triangles in 2D get it
     compiled for the constant ``dim = 2``. The move evaluates ``un``, ``du``, ``q``
-    and ``dq`` from each cell's affine form (:func:`affine_p1`, tabled once per call).
+    and ``dq`` from each cell's affine form (:func:`move_tables`, tabled once per call;
+    :func:`advect_p1_tables` takes the tables made once for several calls).
     """
-    x, cell, t_left, aux, acc, stage, status = P
-    dt, theta, courant, gcourant, nsub, has_q, blend = S
-    origin, inv, _, hc, dofs, nbr, pshift, period, n_owned = M
+    return advect_p1_tables(P, un, un1, du, move_tables(un, du, q, dq, S, M), S, M)
+
+
+@njit(cache=True, error_model="numpy")
+def move_tables(un, du, q, dq, S, M):
+    """The per-cell affine tables ``(au, adu, aq, adq)`` of a move's fields (:func:`affine_p1`).
+
+    ``un``, ``du``, ``q`` and ``dq`` as :func:`advect_p1` takes them; a table the move does
+    not use (``du`` without ``blend``, ``q`` without ``has_q``) is a placeholder. The
+    tables depend on the fields and the mesh only: a move that goes on in further rounds
+    (particles handed over between ranks) uses the same tables.
+    """
+    blend, has_q = S[6], S[5]
+    dofs, inv = M[4], M[1]
     au = affine_p1(un, dofs, inv)
     adu = affine_p1(du, dofs, inv) if blend else _no_table(du, inv)
     aq = affine_p1(q, dofs, inv) if has_q else _no_table(q, inv)
     adq = affine_p1(dq, dofs, inv) if has_q and blend else _no_table(dq, inv)
+    return au, adu, aq, adq
+
+
+@njit(cache=True, error_model="numpy")
+def advect_p1_tables(P, un, un1, du, T, S, M):
+    """:func:`advect_p1` with the fields' tables ``T = (au, adu, aq, adq)`` of
+    :func:`move_tables` (the nodal ``un`` and ``du`` give the cells' gradient rates)."""
+    x, cell, t_left, aux, acc, stage, status = P
+    dt, theta, courant, gcourant, nsub, has_q, blend = S
+    origin, inv, _, hc, dofs, nbr, pshift, period, n_owned = M
+    au, adu, aq, adq = T
     if x.shape[1] == 2 and inv.shape[1] == 2:
         return _advect_p1_tri(
             x, cell, t_left, aux, acc, stage, status, dt, un, un1, theta, has_q, courant,

@@ -113,18 +113,18 @@ def advect(
     """
     if sort:
         cloud.sort_by_cell()
-    inp = _inputs(
-        cloud.pmesh, velocity, velocity_next, theta, courant, substeps, source, source_field
-    )
-    inp = _blend_inputs(cloud.pmesh, inp, velocity_end, source_end, theta)
+    pm = cloud.pmesh
+    inp = _inputs(pm, velocity, velocity_next, theta, courant, substeps, source, source_field)
+    inp = _blend_inputs(pm, inp, velocity_end, source_end, theta)
     _check_source_field(cloud, source, source_field, inp.q.shape[1])
     _add_work_fields(cloud, dt, inp.q.shape[1])
     params = _params(inp, dt, theta, courant, gradient_courant)
+    tables = _move_tables(cloud, inp, params)
     stats = LocateStats()
     try:
         more = True
         while more:
-            status = _move_round(cloud, inp, params, t, dt, theta, courant, gradient_courant, stats)
+            status = _move_round(cloud, inp, params, tables, t, stats)
             more, _ = resolve(cloud, status, stats)
         if source is not None:
             _accumulate(cloud, source_field, source_scale)
@@ -133,6 +133,15 @@ def advect(
             cloud.remove_field(name)
     cloud.invalidate_order()
     return stats
+
+
+def _move_tables(cloud: Cloud, inp: _Inputs, params: K.MoveParams) -> tuple | None:
+    """The fields' per-cell tables of the compiled move, made once for all its rounds
+    (:func:`~pfem2x.particles._kernels.move_tables`); ``None`` when the move has no
+    compiled pass (callables without ``theta``)."""
+    if (inp.vel_call or inp.src_call) and not params.theta > 0.0:
+        return None
+    return K.move_tables(inp.un, inp.du, inp.q, inp.dq, params, cloud.pmesh.arrays)
 
 
 def _params(inp: _Inputs, dt: float, theta: float, courant: float, gcourant: float) -> K.MoveParams:
@@ -259,12 +268,14 @@ def _p1_pass(
     cloud: Cloud,
     inp: _Inputs,
     params: K.MoveParams,
+    tables: tuple | None,
     general: bool,
     status: np.ndarray,
     stats: LocateStats,
 ) -> None:
     """The fused P1 kernel: every sub-step, or only the X-IVAS stage after the general path.
 
+    ``tables``: the fields' per-cell tables (:func:`~pfem2x.particles._kernels.move_tables`).
     With ``general``, particles still on their path (stage 0) belong to the
     general path and are parked. Updates ``status`` of particles not stopped yet.
     """
@@ -283,7 +294,7 @@ def _p1_pass(
         st2,
     )
     pm = cloud.pmesh
-    stats.substeps += K.advect_p1(state, inp.un, inp.un1, inp.du, inp.q, inp.dq, params, pm.arrays)
+    stats.substeps += K.advect_p1_tables(state, inp.un, inp.un1, inp.du, tables, params, pm.arrays)
     stage[parked] = K.STAGE_PATH
     if general:
         busy = status == K.ST_OK
@@ -294,24 +305,23 @@ def _move_round(
     cloud: Cloud,
     inp: _Inputs,
     params: K.MoveParams,
+    tables: tuple | None,
     t0: float,
-    dt: float,
-    theta: float,
-    courant: float,
-    gcourant: float,
     stats: LocateStats,
 ) -> np.ndarray:
     """Move the particles of this rank as far as they go here; their status codes ``(n,)``.
 
     Particles stopped in the ghost layer (``ST_GHOST``) or at a boundary go to
-    :func:`resolve`; those with time left continue in the next round.
+    :func:`resolve`; those with time left continue in the next round. ``tables``: the
+    compiled pass's (:func:`_move_tables`).
     """
     status = np.zeros(cloud.n, dtype=np.int8)
     general = inp.vel_call or inp.src_call
+    dt, theta = params.dt, params.theta
     if general:
-        _general_path(cloud, inp, t0, dt, courant, gcourant, theta, status, stats)
+        _general_path(cloud, inp, t0, dt, params.courant, params.gcourant, theta, status, stats)
     if not general or theta > 0.0:
-        _p1_pass(cloud, inp, params, general, status, stats)
+        _p1_pass(cloud, inp, params, tables, general, status, stats)
     else:
         ghost = (status == K.ST_OK) & (cloud.cells >= cloud.pmesh.n_owned)
         status[ghost] = K.ST_GHOST
