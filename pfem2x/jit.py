@@ -356,14 +356,16 @@ def main(argv: list[str] | None = None) -> int:
     if args.check:
         print(f"pfem2x: particle kernel cache {'cold' if cold else 'warm'} ({cache_dir()})")
         return 1 if cold else 0
-    if args.if_cold and not cold:
+    if not cold:
+        if not args.if_cold:  # (runs load each kernel from the cache when they first call it)
+            print(f"pfem2x: particle kernel cache warm, nothing to compile ({cache_dir()})")
         return 0
 
     def say(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
 
     seconds = warm_up(say)
-    print(f"pfem2x: particle kernels ready in {seconds:.1f} s ({cache_dir()})")
+    print(f"pfem2x: particle kernels compiled in {seconds:.1f} s ({cache_dir()})")
     return 0
 
 

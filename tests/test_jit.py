@@ -95,3 +95,19 @@ def test_warm_up_announces_a_cold_cache(monkeypatch):
     jit.warm_up(said.append)
     assert said == [jit.MESSAGE]
     assert "compiling particle kernels" in jit.MESSAGE
+
+
+def test_the_command_says_what_it_did(monkeypatch, capsys):
+    """``python -m pfem2x.jit``: a warm cache is said to be warm (nothing compiled, and
+    with ``--if-cold`` nothing said); a cold one is compiled and the seconds said."""
+    monkeypatch.setattr(jit, "is_cold", lambda: False)
+    assert jit.main([]) == 0
+    assert "cache warm, nothing to compile" in capsys.readouterr().out
+    assert jit.main(["--if-cold"]) == 0
+    assert capsys.readouterr().out == ""
+    monkeypatch.setattr(jit, "is_cold", lambda: True)
+    monkeypatch.setattr(jit, "exercise_particles", lambda: None)
+    monkeypatch.setattr(jit, "_mark_warm", lambda: None)
+    assert jit.main([]) == 0
+    out = capsys.readouterr()
+    assert "particle kernels compiled in" in out.out and jit.MESSAGE in out.err
