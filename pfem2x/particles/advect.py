@@ -268,7 +268,7 @@ def _p1_pass(
     cloud: Cloud,
     inp: _Inputs,
     params: K.MoveParams,
-    tables: tuple | None,
+    tables: tuple,
     general: bool,
     status: np.ndarray,
     stats: LocateStats,
@@ -313,14 +313,14 @@ def _move_round(
 
     Particles stopped in the ghost layer (``ST_GHOST``) or at a boundary go to
     :func:`resolve`; those with time left continue in the next round. ``tables``: the
-    compiled pass's (:func:`_move_tables`).
+    compiled pass's (:func:`_move_tables`; ``None``: the move has none).
     """
     status = np.zeros(cloud.n, dtype=np.int8)
     general = inp.vel_call or inp.src_call
-    dt, theta = params.dt, params.theta
     if general:
-        _general_path(cloud, inp, t0, dt, params.courant, params.gcourant, theta, status, stats)
-    if not general or theta > 0.0:
+        p = params
+        _general_path(cloud, inp, t0, p.dt, p.courant, p.gcourant, p.theta, status, stats)
+    if tables is not None:
         _p1_pass(cloud, inp, params, tables, general, status, stats)
     else:
         ghost = (status == K.ST_OK) & (cloud.cells >= cloud.pmesh.n_owned)
