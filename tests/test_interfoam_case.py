@@ -33,3 +33,18 @@ def test_sides_of_the_case(gen, tmp_path, sides, side_type, u_side):
         text = (case / field).read_text()
         assert (_patch(text, "left") == "symmetryPlane") == (sides == "symmetry"), field
     assert f"'sides': '{sides}'" in (case / "case.txt").read_text()
+
+
+@pytest.mark.parametrize(("choice", "solver"), [("pcg", "PCG"), ("gamg", "GAMG")])
+def test_pressure_solver_of_the_case(gen, tmp_path, choice, solver):
+    """``--pressure-solver``: PCG/DIC (the tutorial's, the default) or GAMG, same tolerances."""
+    case = tmp_path / "case"
+    args = ["make", str(case), "--nx", "4", "--ny", "8", "--dt", "0.01", "--tau-end", "0.1"]
+    gen.main(args + ([] if choice == "pcg" else ["--pressure-solver", choice]))
+    text = (case / "system/fvSolution").read_text()
+    p_rgh = re.search(r"\n\s*p_rgh \{([^}]*)\}", text).group(1)
+    pcorr = re.search(r'"pcorr\.\*" \{([^}]*)\}', text).group(1)
+    for entry in (p_rgh, pcorr):
+        assert re.search(rf"solver {solver};", entry), entry
+    assert "tolerance 1e-7; relTol 0.05;" in p_rgh
+    assert f"'pressure_solver': '{choice}'" in (case / "case.txt").read_text()
