@@ -28,6 +28,7 @@ FLOW_COMMON_KEYS = (
     *(f"flow.{s}" for s in FLOW_SIDES),
     *(f"flow.{k}" for k in ("max_speed", "pressure_step", "correction", "rtol")),
     "flow.divergence_rtol",
+    "flow.divergence_preconditioner",
     "flow.surface_tension",
     "flow.capillary_increment",
     "flow.capillary_damping",

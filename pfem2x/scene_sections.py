@@ -229,6 +229,7 @@ class FlowSection(Section):
     capillary_damping: str
     rtol: float
     divergence_rtol: float
+    divergence_preconditioner: str
     quadrature_degree: int
 
     def side(self, name: str) -> str:

@@ -299,6 +299,7 @@ def test_check_names_the_frame_keys_the_run_takes():
         "flow.predictor_rtol = 0.0001",
         "flow.predictor_divergence_rtol = 0.2",
         "flow.rtol = 1e-06",
+        'flow.divergence_preconditioner = "jacobi"',
     )
     # a --set of one key (or of the step) leaves the others
     sc = load_scene("dam-break", ["method.frame=eulerian"])
@@ -321,7 +322,8 @@ def test_check_names_the_frame_keys_the_run_takes():
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip().endswith(
         "[frames.lagrangian]: flow.predictor_substeps = 2, flow.predictor_rtol = 0.0001, "
-        "flow.predictor_divergence_rtol = 0.2, flow.rtol = 1e-06; "
+        "flow.predictor_divergence_rtol = 0.2, flow.rtol = 1e-06, "
+        'flow.divergence_preconditioner = "jacobi"; '
         'auto: flow.pressure_step = "increment", flow.divergence_rtol = 0.05, '
         'flow.pass_pressure = "increment"'
     )

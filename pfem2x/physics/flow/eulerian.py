@@ -148,6 +148,7 @@ class EulerianFlow(FlowSolver):
                 self.timer,
                 force_in_projection=(self.jump is not None or self.capillary is not None)
                 and not pr.incremental, divergence_rtol=pr.divergence_rtol,
+                divergence_preconditioner=pr.divergence_preconditioner,
             )
         )  # fmt: skip
         if self.projection.force_in_projection:

@@ -347,6 +347,7 @@ class LagrangianFlow(TwoPasses, OpenSides, ParticleCapillary, ParticleTransfers,
                 self.scene.method.preconditioner, pr.rtol, self.timer,
                 force_in_projection=(self.jump is not None or self.capillary is not None)
                 and not pr.incremental, divergence_rtol=pr.divergence_rtol,
+                divergence_preconditioner=pr.divergence_preconditioner,
                 cell_dofs=self._cell_dofs,
             )
         )  # fmt: skip

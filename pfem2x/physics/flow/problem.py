@@ -162,6 +162,8 @@ class FlowProblem:
             and self.correction == "velocity"
             else 0.0,
         )
+        #: flow.divergence_preconditioner: the discrete projection's ("pressure", "jacobi")
+        self.divergence_preconditioner = str(fl.divergence_preconditioner)
         #: flow.pass_pressure (PFEM-2): "increment" or "consistent" (recorded where read)
         self.pass_pressure = self._auto(
             "flow.pass_pressure",

@@ -32,13 +32,15 @@ mesh scale: at a density jump, where the particles then gather in the cut cells.
 ``flow.divergence_rtol`` > 0 (the *discrete* projection; the ``"velocity"``
 correction, closed boxes) removes what is left: after the correction,
 :math:`S q = -\Delta t^{-1} D u`, :math:`u \mathrel{-}= \Delta t\,P M^{-1} G q`,
-:math:`p \mathrel{+}= q`, by GMRES from 0, right-preconditioned by the Laplacian's
-AMG (the pressure solve's own set-up), to that relative tolerance or at most 30
-iterations (the P1 pair's mesh-scale pressure modes are out of :math:`S`'s range: on a
-smooth flow the residual stalls at a few per cent, and GMRES keeps its best iterate). A
-balanced state (no weak divergence) is left as it is. One more matrix (:math:`G`, with
-the Laplacian) and one GMRES solve per pressure step (docs/RESULTS.md, "Where the water particles'
-volume goes").
+:math:`p \mathrel{+}= q`, by GMRES from 0, right-preconditioned by the pressure solve's
+own AMG (``flow.divergence_preconditioner = "pressure"``: its set-up for the same density,
+no second one) or by the Laplacian's diagonal (``"jacobi"``: fewer and cheaper iterations,
+but the particles keep their phase's volume less well: docs/BENCHMARKS.md, "The discrete
+projection's preconditioner"), to that relative tolerance or at most 30 iterations (the P1 pair's
+mesh-scale pressure modes are out of :math:`S`'s range: on a smooth flow the residual
+stalls at a few per cent, and GMRES keeps its best iterate). A balanced state (no weak
+divergence) is left as it is. One more matrix (:math:`G`, with the Laplacian) and one
+GMRES solve per pressure step (docs/RESULTS.md, "Where the water particles' volume goes").
 
 With a cellwise (DG0) density (the Lagrangian frame's, ``cell_dofs``) and a closed box,
 the Laplacian, :math:`G` and the lumped mass :math:`M_\rho` are re-assembled from their
@@ -98,6 +100,9 @@ class PressureProjection:
         (with ``incremental = False``; see the module docstring).
     divergence_rtol
         > 0: the discrete projection to this tolerance (see the module docstring).
+    divergence_preconditioner
+        The discrete projection's GMRES preconditioner: ``"pressure"`` (the pressure
+        solve's own) or ``"jacobi"`` (the diagonal of the pressure step's Laplacian).
     cell_dofs
         ``rho`` is a DG0 function and these are its owned cells' dofs: the
         operators that change with it (the Laplacian, the lumped mass, the discrete
@@ -126,11 +131,16 @@ class PressureProjection:
         force_in_projection: bool = False,
         divergence_rtol: float = 0.0,
         cell_dofs: np.ndarray | None = None,
+        divergence_preconditioner: str = "pressure",
     ):
         self.bcs_u, self.bcs_p = bcs_u, bcs_p
         self.dt_c = dt_c
         #: > 0: the discrete projection to this tolerance (see the module docstring)
         self.divergence_rtol = float(divergence_rtol)
+        if divergence_preconditioner not in ("pressure", "jacobi"):
+            raise ValueError(f"unknown divergence preconditioner {divergence_preconditioner!r}")
+        #: the discrete projection's preconditioner ("pressure" or "jacobi")
+        self.divergence_preconditioner = divergence_preconditioner
         if self.divergence_rtol > 0.0 and (bcs_p or correction != "velocity"):
             raise ValueError("the discrete projection needs a closed box and correction = velocity")
         self._discrete: _DiscreteProjection | None = None
@@ -328,8 +338,9 @@ class _DiscreteProjection:
     the Laplacian; :math:`M^{-1}` the lumped mass's inverse with the velocity's
     condition rows zeroed), the Schur complement :math:`S = -DPM^{-1}G` applied as
     the two products (no matrix of it) and its GMRES solver, right-preconditioned by
-    the pressure solver's own AMG (set up for the Laplacian of the same density by
-    the pass's pressure solve: no second set-up).
+    the pressure solver's own AMG (set up for the Laplacian of the same density by the
+    pass's pressure solve: no second set-up) or by that Laplacian's diagonal
+    (``proj.divergence_preconditioner``).
     """
 
     #: GMRES iterations at most (one restart cycle)
@@ -356,11 +367,16 @@ class _DiscreteProjection:
         self.q = self.rhs.duplicate()
         self.du = compat.create_vector(proj.L_mass)
         self.rtol = proj.divergence_rtol
+        self.jacobi = proj.divergence_preconditioner == "jacobi"
         self.ksp: Any = None
         self.S: Any = None
 
     def assemble(self, A_p: Any, nullspace: Any, p_solver: fem.LinearSolver) -> None:
-        """:math:`PM^{-1}G` of the current density; the solver on first use (collective)."""
+        """:math:`PM^{-1}G` of the current density; the solver on first use (collective).
+
+        ``A_p``, ``p_solver``: the pressure step's Laplacian of the same density and its
+        solver, whose preconditioner (or ``A_p``'s diagonal) preconditions the GMRES.
+        """
         if self.G is not None and self._gradient is not None:
             self._gradient.matrix(self._inverse_density(), self.G)
         else:
@@ -369,6 +385,8 @@ class _DiscreteProjection:
                 self.G = self._gradient.adopt(self.G)
         self.G.diagonalScale(L=self.minv)  # P M^-1 G
         if self.ksp is not None:
+            if self.jacobi:  # (A_p's state tells PETSc to take its diagonal again)
+                self.ksp.setOperators(self.S, A_p)
             return
         sizes = (self.rhs.getSizes(), self.rhs.getSizes())
         self.S = PETSc.Mat().createPython(sizes, _SchurProduct(self), comm=A_p.getComm())
@@ -376,15 +394,18 @@ class _DiscreteProjection:
         if nullspace is not None:
             self.S.setNullSpace(nullspace)
         ksp = PETSc.KSP().create(A_p.getComm())
-        ksp.setOperators(self.S)
+        ksp.setOperators(self.S, A_p if self.jacobi else None)
         ksp.setType("gmres")
         ksp.setGMRESRestart(self.MAX_IT)
         ksp.setTolerances(rtol=self.rtol, atol=1e-50, max_it=self.MAX_IT)
         ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
         ksp.setPCSide(PETSc.PC.Side.RIGHT)
         pc = ksp.getPC()
-        pc.setType(PETSc.PC.Type.PYTHON)
-        pc.setPythonContext(_SharedPC(p_solver.ksp.getPC()))
+        if self.jacobi:
+            pc.setType(PETSc.PC.Type.JACOBI)  # the diagonal of A_p
+        else:
+            pc.setType(PETSc.PC.Type.PYTHON)
+            pc.setPythonContext(_SharedPC(p_solver.ksp.getPC()))
         self.ksp = ksp
 
     def polish(self, u: Any, p: Any, dt: float, nullspace: Any, rtol: float | None = None) -> int:
