@@ -58,7 +58,8 @@ def test_gaussian_hill_reference_peak_follows_heat_equation():
 
 
 def test_rayleigh_taylor_tip_errors():
-    """metrics.tip_error(_tau2): max tip distance to interFoam at the reference times."""
+    """metrics.tip_error(_tau2), tip_error_axis(_tau2): max tip distance to interFoam at the
+    reference times (the scene's reference and the finer grid's axis tips)."""
     from types import SimpleNamespace
 
     from pfem2x.cases import INTERFOAM_RT_TIPS, RayleighTaylorCase
@@ -79,6 +80,21 @@ def test_rayleigh_taylor_tip_errors():
     # a run stopped at tau = 1.2 is measured at tau = 1 only
     m = RayleighTaylorCase(solver).metrics([h for h in hist if h["tau"] <= 1.2])
     assert m["tip_error"] == pytest.approx(0.01)
+    # against the axis reference (interFoam 200 x 800, both tips on its axis): these tips
+    # are off by the two references' difference plus the offset
+    from pfem2x.cases import INTERFOAM_RT_AXIS_TIPS
+
+    m = RayleighTaylorCase(solver).metrics(hist)
+    ax = INTERFOAM_RT_AXIS_TIPS
+    assert np.array_equal(ax[:, 0], INTERFOAM_RT_TIPS[:, 0])
+    want = {}
+    for key, tmax in (("tip_error_axis", 2.5), ("tip_error_axis_tau2", 2.0)):
+        rows = INTERFOAM_RT_TIPS[:, 0] <= tmax
+        o = np.where(INTERFOAM_RT_TIPS[rows, 0] > 2.0, 0.05, 0.01)[:, None] * [-1.0, 0.5]
+        want[key] = np.abs(INTERFOAM_RT_TIPS[rows, 1:] + o - ax[rows, 1:]).max()
+        assert m[key] == pytest.approx(want[key]), key
+    # the spike at tau = 2: -0.821 - 0.01 against the axis spike -0.8598
+    assert m["tip_error_axis_tau2"] == pytest.approx(0.0288)
     # other physical data: the reference does not apply
     solver.scene.params = dict(params, A=0.2)
     assert RayleighTaylorCase(solver).metrics(hist) == {}
