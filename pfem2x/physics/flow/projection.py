@@ -137,8 +137,6 @@ class PressureProjection:
         self.dt_c = dt_c
         #: > 0: the discrete projection to this tolerance (see the module docstring)
         self.divergence_rtol = float(divergence_rtol)
-        if divergence_preconditioner not in ("pressure", "jacobi"):
-            raise ValueError(f"unknown divergence preconditioner {divergence_preconditioner!r}")
         #: the discrete projection's preconditioner ("pressure" or "jacobi")
         self.divergence_preconditioner = divergence_preconditioner
         if self.divergence_rtol > 0.0 and (bcs_p or correction != "velocity"):
@@ -162,11 +160,8 @@ class PressureProjection:
         self.L_p = compat.form(L_p)
         #: the body force (UFL) in the forms; None without effects.gravity
         self.body_force = f_body
-        self.L_p0 = (
-            compat.form((1.0 / rho) * ufl.dot(f_body, ufl.grad(r)) * dxq)
-            if f_body is not None
-            else None
-        )
+        L_p0 = None if f_body is None else (1.0 / rho) * ufl.dot(f_body, ufl.grad(r)) * dxq
+        self.L_p0 = None if L_p0 is None else compat.form(L_p0)
         self.A_p: Any = None
         self.b_p = compat.create_vector(self.L_p)
         self.p_solver: fem.LinearSolver | None = None
@@ -367,6 +362,10 @@ class _DiscreteProjection:
         self.q = self.rhs.duplicate()
         self.du = compat.create_vector(proj.L_mass)
         self.rtol = proj.divergence_rtol
+        if proj.divergence_preconditioner not in ("pressure", "jacobi"):
+            raise ValueError(
+                f"unknown divergence preconditioner {proj.divergence_preconditioner!r}"
+            )
         self.jacobi = proj.divergence_preconditioner == "jacobi"
         self.ksp: Any = None
         self.S: Any = None
