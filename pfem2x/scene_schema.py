@@ -575,7 +575,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "pressure",
             doc="the discrete projection's GMRES preconditioner: pressure = the pressure "
             "solve's own (its AMG, set up for the same density: no second set-up), jacobi = "
-            "the diagonal of its Laplacian (about a third of the iterations' time; the "
+            "the diagonal of its Laplacian (fewer iterations, each about a third of the time; the "
             "particles keep their phase's volume less well: the dam break's water 0.8-1.0 % "
             "against 0.2-0.4 %)",
         ),
