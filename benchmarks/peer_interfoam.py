@@ -779,7 +779,7 @@ def main() -> None:
             "tips": ref,
             "axis_cases": AXIS_REF,
             "axis_tips": axis_reference(args.stored),
-        },  # fmt: skip
+        },
         "time_measure": args.time,
         "runs": [],
     }
