@@ -428,7 +428,8 @@ def png_snapshot(
     1D is a line plot, 2D a filled plot in the domain's aspect ratio with a
     colour bar (``label`` and the range) and the interface ``segments``
     (this rank's ``(m, 2, 2)``, e.g. the solver's ``interfaces()``) drawn on
-    top, both with matplotlib; 3D uses pyvista off-screen where it can
+    top; 1D with matplotlib, 2D with numpy and Pillow (:mod:`pfem2x.picture`);
+    3D uses pyvista off-screen where it can
     render (probed once per installation, see :func:`pyvista_usable`).
     """
     coords, vals = gather_p1(u)
@@ -496,11 +497,11 @@ def pyvista_usable() -> bool:
     first render is tried in a child process, once per installation: the
     answer is cached in :func:`probe_cache_file`, keyed by the Python
     executable and the pyvista and VTK versions. ``PFEM2X_PNG_BACKEND``
-    (``matplotlib`` / ``pyvista``) skips the probe.
+    (``pyvista``, or ``pillow`` / ``matplotlib``: the 2D drawing) skips the probe.
     """
     global _PYVISTA_OK
     if _PYVISTA_OK is None:
-        if os.environ.get("PFEM2X_PNG_BACKEND") in ("matplotlib", "pyvista"):
+        if os.environ.get("PFEM2X_PNG_BACKEND") in ("matplotlib", "pillow", "pyvista"):
             _PYVISTA_OK = os.environ["PFEM2X_PNG_BACKEND"] == "pyvista"
         elif importlib.util.find_spec("pyvista") is None:
             _PYVISTA_OK = False

@@ -87,3 +87,20 @@ def test_solver_profile_times_every_kind_of_solve(monkeypatch, capsys):
         err = capsys.readouterr().err
         assert err.startswith("error: --time") and err.count("\n") == 1
     assert P.project_fields is project
+
+
+def test_picture_benchmark_draws_six_snapshots_per_checkout(tmp_path, capsys):
+    """``benchmarks/picture.py``: a fresh process per run, the medians per checkout; a
+    folder without pfem2x is one ``error:`` line and exit 2."""
+    import json
+
+    mod = _module("picture")
+    out = tmp_path / "p.json"
+    args = ["--checkout", f"now={ROOT}", "--cells", "8", "32", "--repeat", "1", "--json", str(out)]
+    assert mod.main(args) == 0
+    runs = json.loads(out.read_text())["runs"]["now"]
+    assert len(runs) == 1 and 0 < runs[0]["next"] <= runs[0]["six"]
+    assert "| now | 1 |" in capsys.readouterr().out
+    assert mod.main(["--checkout", f"x={tmp_path}"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: --checkout")

@@ -58,7 +58,7 @@ def test_default_png_times_are_first_and_last_without_probe(tmp_path, no_probe):
     assert res.status == "ok"
     names = sorted(p.name for p in (tmp_path / "r").glob("*.png"))
     assert names == ["T_t0000.000.png", "T_t0000.200.png"]
-    assert no_probe == []  # 2D pictures are drawn with matplotlib
+    assert no_probe == []  # 2D pictures are drawn with Pillow
 
 
 def test_a_png_time_beyond_t_end_is_named_by_the_time_it_shows(tmp_path, no_probe):
@@ -239,6 +239,84 @@ def test_non_finite_values_are_blank_pixels(tmp_path):
     vals[3] = np.inf
     picture.png_2d(tmp_path / "a.png", coords, vals, "t", None, None, "T")
     assert (tmp_path / "a.png").stat().st_size > 1000
-    assert "[0, 1]" in picture._CANVAS[0].bar.ax.get_ylabel()
+    assert "[0, 1]" in picture._CANVAS[0].bar_label
     picture.png_2d(tmp_path / "b.png", coords, np.full_like(vals, np.nan), "t", None, None, "T")
     assert (tmp_path / "b.png").is_file()
+
+
+def test_ticks_are_round_values_within_the_range():
+    """At most the asked number of multiples of 1, 2, 2.5 or 5 x 10^k, labelled by the step."""
+    import numpy as np
+
+    assert np.allclose(picture.nice_ticks(-0.5, 0.5, 3), [-0.5, 0.0, 0.5])
+    assert np.allclose(picture.nice_ticks(-2.0, 2.0, 13), np.arange(-2.0, 2.01, 0.5))
+    assert picture.tick_labels(picture.nice_ticks(-0.5, 0.5, 3)) == ["-0.5", "0.0", "0.5"]
+    assert picture.tick_labels(np.array([0.0, 0.25, 0.5])) == ["0.00", "0.25", "0.50"]
+    assert picture.tick_labels(np.array([0.0, 500.0, 1000.0])) == ["0", "500", "1000"]
+    assert picture.tick_labels(np.array([-1e-17, 0.1])) == ["0.0", "0.1"]
+    assert list(picture.nice_ticks(1.0, 1.0, 5)) == [1.0]
+    rng = np.random.default_rng(1)
+    for _ in range(500):
+        lo = rng.uniform(-1e3, 1e3) * 10.0 ** rng.integers(-6, 3)
+        hi = lo + rng.uniform(1e-3, 1e3) * 10.0 ** rng.integers(-6, 3)
+        most = int(rng.integers(2, 12))
+        t = picture.nice_ticks(lo, hi, most)
+        assert 1 <= len(t) <= most, (lo, hi, most, t)
+        assert t.min() >= lo - 1e-9 * (hi - lo) and t.max() <= hi + 1e-9 * (hi - lo)
+        assert len(set(picture.tick_labels(t))) == len(t), "labels tell the ticks apart"
+
+
+def test_iso_line_of_a_linear_field_is_exact():
+    """The segments of ``x - 0.3 = 0`` on a perturbed mesh lie on x = 0.3 and span it once."""
+    import numpy as np
+
+    coords = _triangles(7, 5, jitter=0.3)
+    seg = picture.iso_segments(coords, coords[..., 0] - 0.3, 0.0)
+    assert np.allclose(seg[..., 0], 0.3, atol=1e-12)
+    assert np.isclose(np.abs(seg[:, 1, 1] - seg[:, 0, 1]).sum(), 1.0, atol=1e-12)
+    assert len(picture.iso_segments(coords, coords[..., 0], 5.0)) == 0
+
+
+def test_the_picture_is_the_field_in_viridis_with_the_interface_in_red(tmp_path, monkeypatch):
+    """Each pixel of the plot has viridis's colour of the P1 value at its centre; the
+    interface's pixels are red, pixels 3 or more away from it are the field's; blank
+    (white) where the values are not finite."""
+    import numpy as np
+    from PIL import Image
+
+    monkeypatch.setattr(picture, "_CANVAS", [])
+    coords = _triangles(6, 4, hi=(2.0, 1.0), jitter=0.3)
+    picture.png_2d(tmp_path / "a.png", coords, coords[..., 0] / 2.0, "t", (0.0, 1.0), None, "s")
+    canvas = picture._CANVAS[0]
+    (left, top), (rows, cols) = canvas.box, canvas.shape
+    plot = np.asarray(Image.open(tmp_path / "a.png").convert("RGB"))
+    plot = plot[top : top + rows, left : left + cols].astype(int)
+    xc = (np.arange(cols) + 0.5) / cols  # the field x / 2 at the pixel centres
+    index = np.minimum(np.floor(xc * 256), 255).astype(int)
+    lut = picture._viridis().astype(int)
+    near = [(lut[np.clip(index + k, 0, 255)][None] == plot).all(-1) for k in (0, -1, 1)]
+    assert np.mean(near[0]) > 0.999, "the field's colours"
+    assert np.all(near[0] | near[1] | near[2]), "(a centre on a colour's edge: either side)"
+    line = np.array([[[0.0, 0.5], [2.0, 0.5]]])
+    picture.png_2d(
+        tmp_path / "b.png", coords, coords[..., 0] / 2.0, "t", (0.0, 1.0), None, "s", line
+    )
+    drawn = np.asarray(Image.open(tmp_path / "b.png").convert("RGB"))
+    drawn = drawn[top : top + rows, left : left + cols].astype(int)
+    row = rows / 2.0  # the line y = 0.5 between pixel rows rows/2 - 1 and rows/2
+    centre = drawn[int(row) - 1 : int(row) + 1]
+    assert np.all(centre[..., 0] >= 230) and np.all(centre[..., 1] <= 120), "red on the line"
+    far = np.abs(np.arange(rows) + 0.5 - row) >= 3.0
+    assert np.array_equal(drawn[far], plot[far]), "nothing drawn away from the line"
+    edge = np.array([[[-1.0, 1.0], [3.0, 1.0]], [[0.5, -0.5], [0.5, -0.02]]])  # on and off the box
+    picture.png_2d(
+        tmp_path / "d.png", coords, coords[..., 0] / 2.0, "t", (0.0, 1.0), None, "s", edge
+    )
+    drawn = np.asarray(Image.open(tmp_path / "d.png").convert("RGB"))
+    drawn = drawn[top : top + rows, left : left + cols].astype(int)
+    assert np.all(drawn[0, :, 0] >= 200), "the top row half covered"
+    assert np.array_equal(drawn[3:], plot[3:]), "nothing drawn but near the top edge"
+    nan = np.full_like(coords[..., 0], np.nan)
+    picture.png_2d(tmp_path / "c.png", coords, nan, "t", None, None, "s")
+    blank = np.asarray(Image.open(tmp_path / "c.png").convert("RGB"))
+    assert np.all(blank[top : top + rows, left : left + cols] == 255)
