@@ -14,7 +14,8 @@ equal dynamic viscosity, no surface tension, slip on all four walls, fluids at r
 interface y = sign * 0.1 d cos(2 pi x / d) (``--sign -1`` flips it: spike on the axis).
 ``--sides symmetry`` makes the left and right sides ``symmetryPlane`` patches (every field
 mirrored) instead of walls with ``slip`` velocity, ``fixedFluxPressure`` and ``zeroGradient``
-alpha.
+alpha; ``--sides cyclic`` joins them into one periodic pair (no side boundary at all: the
+flow, symmetric about x = 0 and x = +-d/2, is the slip walls' without their discretisation).
 ``alpha.heavy`` at t = 0 is the area fraction of each cell above that curve (Gauss-Legendre
 quadrature of the clipped column height, written as a nonuniform list: no setFields).
 
@@ -115,7 +116,7 @@ class CaseSpec:
     write_every: float = 0.025
     sign: float = 1.0
     nproc: int = 2
-    #: the left and right sides: "slip" walls or "symmetry" planes
+    #: the left and right sides: "slip" walls, "symmetry" planes or "cyclic" (one periodic pair)
     sides: str = "slip"
     #: the pressure solver: "pcg" (PCG/DIC, the tutorial's) or "gamg" (GAMG, DIC smoother)
     pressure_solver: str = "pcg"
@@ -161,8 +162,12 @@ def boundary_field(entries: dict[str, str]) -> str:
     return f"boundaryField\n{{\n{walls}    frontAndBack {{ type empty; }}\n}}\n"
 
 
+#: the left and right patches' type and their fields' entry, by ``CaseSpec.sides``
+SIDE_PATCHES = {"symmetry": "symmetryPlane", "cyclic": "cyclic"}
+
+
 def _sides(entry: str, sides: str = "slip") -> dict[str, str]:
-    side = "type symmetryPlane;" if sides == "symmetry" else entry
+    side = f"type {SIDE_PATCHES[sides]};" if sides in SIDE_PATCHES else entry
     return {"left": side, "right": side, "bottom": entry, "top": entry}
 
 
@@ -224,7 +229,9 @@ def write_case(case: Path, spec: CaseSpec, pb: Problem | None = None) -> None:
     t_end = spec.tau_end / pb.time_factor
     # end on a write time at or after tau_end, so that the tips can be interpolated there
     end = math.ceil(t_end / spec.write_every - 1e-9) * spec.write_every
-    write_block_mesh(case, pb, nx, ny, "symmetryPlane" if spec.sides == "symmetry" else "wall")
+    if spec.sides not in ("slip", *SIDE_PATCHES):
+        raise ValueError(f"sides: slip, symmetry or cyclic, not {spec.sides!r}")
+    write_block_mesh(case, pb, nx, ny, SIDE_PATCHES.get(spec.sides, "wall"))
     if spec.max_co is not None:
         dy = (pb.y1 - pb.y0) / ny
         step = adaptive_step(0.1 * dy, spec.max_co, spec.write_every)
@@ -298,7 +305,11 @@ def write_fields(
 def write_block_mesh(case: Path, pb: Any, nx: int, ny: int, side_type: str = "wall") -> None:
     """``system/blockMeshDict``: ``nx`` x ``ny`` hexahedra in one layer over
     ``[pb.x0, pb.x1] x [pb.y0, pb.y1]``, walls bottom/top, left/right of ``side_type``
-    (``wall`` or ``symmetryPlane``), ``empty`` front/back."""
+    (``wall``, ``symmetryPlane`` or ``cyclic``: each the other's neighbour), ``empty``
+    front/back."""
+    pair = {"left": "", "right": ""}
+    if side_type == "cyclic":
+        pair = {"left": " neighbourPatch right;", "right": " neighbourPatch left;"}
     dz = (pb.x1 - pb.x0) / nx
     v = [(pb.x0, pb.y0), (pb.x1, pb.y0), (pb.x1, pb.y1), (pb.x0, pb.y1)]
     verts = " ".join(f"({x:g} {y:g} {z:g})" for z in (0.0, dz) for x, y in v)
@@ -309,8 +320,8 @@ blocks ( hex (0 1 2 3 4 5 6 7) ({nx} {ny} 1) simpleGrading (1 1 1) );
 edges ();
 boundary
 (
-    left   {{ type {side_type}; faces ((0 4 7 3)); }}
-    right  {{ type {side_type}; faces ((1 2 6 5)); }}
+    left   {{ type {side_type};{pair["left"]} faces ((0 4 7 3)); }}
+    right  {{ type {side_type};{pair["right"]} faces ((1 2 6 5)); }}
     bottom {{ type wall; faces ((0 1 5 4)); }}
     top    {{ type wall; faces ((3 7 6 2)); }}
     frontAndBack {{ type empty; faces ((0 3 2 1) (4 5 6 7)); }}
@@ -548,7 +559,9 @@ def main(argv: list[str] | None = None) -> None:
     mk.add_argument("--write-every", type=float, default=0.025, help="alpha output interval")
     mk.add_argument("--sign", type=float, default=1.0, choices=(1.0, -1.0))
     mk.add_argument("--nproc", type=int, default=2, help="ranks for decomposeParDict")
-    mk.add_argument("--sides", choices=("slip", "symmetry"), default="slip", help="left/right")
+    mk.add_argument(
+        "--sides", choices=("slip", "symmetry", "cyclic"), default="slip", help="left/right"
+    )
     mk.add_argument(
         "--pressure-solver",
         choices=("pcg", "gamg"),

@@ -17,9 +17,11 @@ def _patch(text: str, name: str) -> str:
 @pytest.mark.parametrize(("sides", "side_type", "u_side"), [
     ("slip", "wall", "slip"),
     ("symmetry", "symmetryPlane", "symmetryPlane"),
+    ("cyclic", "cyclic", "cyclic"),
 ])  # fmt: skip
 def test_sides_of_the_case(gen, tmp_path, sides, side_type, u_side):
-    """``--sides``: slip walls (the reference runs) or symmetry planes left and right."""
+    """``--sides``: slip walls (the reference runs), symmetry planes left and right, or the
+    two sides one cyclic pair (each naming the other)."""
     case = tmp_path / "case"
     assert gen.main(["make", str(case), "--nx", "4", "--ny", "8", "--dt", "0.01",
                      "--tau-end", "0.1", "--sides", sides]) is None  # fmt: skip
@@ -29,9 +31,13 @@ def test_sides_of_the_case(gen, tmp_path, sides, side_type, u_side):
     u = (case / "0/U").read_text()
     assert _patch(u, "left") == _patch(u, "right") == u_side
     assert _patch(u, "bottom") == "slip"
-    for field in ("0/p_rgh", "0/alpha.heavy"):
+    for field, wall in (("0/p_rgh", "fixedFluxPressure"), ("0/alpha.heavy", "zeroGradient")):
         text = (case / field).read_text()
-        assert (_patch(text, "left") == "symmetryPlane") == (sides == "symmetry"), field
+        side = wall if sides == "slip" else u_side
+        assert _patch(text, "left") == _patch(text, "right") == side, field
+    if sides == "cyclic":
+        assert re.search(r"left\s*\{ type cyclic; neighbourPatch right;", mesh)
+        assert re.search(r"right\s*\{ type cyclic; neighbourPatch left;", mesh)
     assert f"'sides': '{sides}'" in (case / "case.txt").read_text()
 
 
