@@ -111,3 +111,25 @@ def test_the_command_says_what_it_did(monkeypatch, capsys):
     assert jit.main([]) == 0
     out = capsys.readouterr()
     assert "particle kernels compiled in" in out.out and jit.MESSAGE in out.err
+
+
+def test_the_package_is_byte_compiled_whatever_python_may_write(tmp_path, monkeypatch):
+    """``compile_bytecode`` writes the ``.pyc`` of every module, also where Python itself
+    would not (``PYTHONDONTWRITEBYTECODE``), and again after a module changes."""
+    import importlib.util
+    import os
+    import sys
+
+    monkeypatch.setenv("PYTHONDONTWRITEBYTECODE", "1")
+    monkeypatch.setattr(sys, "dont_write_bytecode", True)
+    (tmp_path / "sub").mkdir()
+    for name in ("a.py", "sub/b.py"):
+        (tmp_path / name).write_text("X = 1\n")
+    assert jit.compile_bytecode(tmp_path)
+    pyc = [tmp_path / importlib.util.cache_from_source(n) for n in ("a.py", "sub/b.py")]
+    assert all(p.is_file() for p in pyc)
+    before = pyc[0].stat().st_mtime_ns
+    (tmp_path / "a.py").write_text("X = 2\n")
+    os.utime(tmp_path / "a.py", ns=(before + 10**9, before + 10**9))
+    assert jit.compile_bytecode(tmp_path)
+    assert pyc[0].stat().st_mtime_ns != before, "a stale .pyc is written again"
