@@ -6,9 +6,9 @@ about 8 minutes) and cached on disk next to the source
 (``pfem2x/particles/__pycache__``, or under ``NUMBA_CACHE_DIR``); later runs
 load them from there. On a cold cache :func:`warm_up` compiles every kernel a
 scene may use by running the particle layer once on a tiny mesh, and says so
-first. ``make setup`` runs it (``python -m pfem2x.jit``), so a first ``pfem2x
-run`` after installing starts at once (it also byte-compiles the package's modules:
-:func:`compile_bytecode`); the runner calls it during set-up and
+first. ``make setup`` runs it (``python -m pfem2x.jit``, which also byte-compiles the
+package's modules: :func:`compile_bytecode`), so a first ``pfem2x run`` after
+installing starts at once; the runner calls it during set-up and
 reports the seconds it took as ``compile_seconds``. On a warm cache it does
 nothing: each kernel loads from the cache when a run first calls it, so a run
 loads only the specialisations it uses (a Rayleigh–Taylor run on one core starts
@@ -381,11 +381,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = ap.parse_args(argv)
     cold = is_cold()
-    if not args.check:
-        compile_bytecode()
     if args.check:
         print(f"pfem2x: particle kernel cache {'cold' if cold else 'warm'} ({cache_dir()})")
         return 1 if cold else 0
+    compile_bytecode()
     if not cold:
         if not args.if_cold:  # (runs load each kernel from the cache when they first call it)
             print(f"pfem2x: particle kernel cache warm, nothing to compile ({cache_dir()})")

@@ -1,7 +1,8 @@
 """The 2D PNG snapshot: a P1 field rasterised on the picture's pixels, a colour bar, the interface.
 
 :func:`png_2d` draws one snapshot with numpy and Pillow: no plotting library is imported
-(matplotlib's import and the layout of its artists were most of a run's picture time).
+(matplotlib's import and the layout of its artists cost more than the drawing itself:
+docs/BENCHMARKS.md, "The 2D PNG drawn with Pillow").
 What does not change between the snapshots of a mesh (:class:`Canvas`) is drawn once:
 the pixels' barycentric weights, the frame, the axes' ticks and labels and the colour
 bar's gradient. Each snapshot draws the field, the interface, the colour bar's ticks for
