@@ -115,8 +115,9 @@ INTERFOAM_RT_TIPS = np.array(
 #: with slip walls the same flow shifted by d/2) and the bubble of the scene's interface
 #: (``r200_dt0.001``); docs/data/rt-reference/interfoam/. interFoam's wall spike falls
 #: 0.031 d (100 x 400) and 0.036 d (200 x 800) behind its axis spike at tau = 2, where a
-#: slip wall, a symmetry plane, should change nothing (docs/RESULTS.md, "Rayleigh-Taylor").
-#: Rows as :data:`INTERFOAM_RT_TIPS`.
+#: slip wall, a symmetry plane, should change nothing; with the sides one cyclic pair (no
+#: side boundary, ``c200_dt0.001``) its tips are these to 0.001 d (docs/RESULTS.md,
+#: "Rayleigh-Taylor"). Rows as :data:`INTERFOAM_RT_TIPS`.
 INTERFOAM_RT_AXIS_TIPS = np.array(
     [
         [1.0, -0.3717, 0.2989],

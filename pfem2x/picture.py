@@ -23,6 +23,7 @@ in 10 pt text, the colour bar right of it.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -62,9 +63,12 @@ _VIRIDIS_HEX = (
 )
 
 
+@functools.cache
 def _viridis() -> np.ndarray:
-    """The ``(256, 3)`` uint8 colour table."""
-    return np.frombuffer(bytes.fromhex("".join(_VIRIDIS_HEX)), np.uint8).reshape(256, 3)
+    """The ``(256, 3)`` uint8 colour table (decoded once)."""
+    table = np.frombuffer(bytes.fromhex("".join(_VIRIDIS_HEX)), np.uint8).reshape(256, 3)
+    table.flags.writeable = False
+    return table
 
 
 def raster_weights(
@@ -219,18 +223,15 @@ def _coverage(segments: np.ndarray, shape: tuple[int, int], width: float) -> np.
             near = (di - fx) ** 2 + (dj - fy) ** 2 <= r * r
             mask[j[near] + dj + 2 * R, i[near] + di + 2 * R] = 1
     inner = mask[2 * R : 2 * R + rows, 2 * R : 2 * R + cols]
-    # the pixel rows the lines reach, their sub-pixels summed (one slice at a time: cheaper
-    # than a sum over two axes of the whole grid)
+    # the pixel rows the lines reach, their sub-pixels summed one sub-row and sub-column
+    # at a time (cheaper than numpy's sum over two short axes)
     first = max(int(j.min()) - R, 0) // SUPER
     last = min((int(j.max()) + R) // SUPER + 1, shape[0])
-    part = inner[first * SUPER : last * SUPER].reshape(last - first, SUPER, cols)
-    across = part[:, 0].copy()
-    for k in range(1, SUPER):
-        across += part[:, k]
-    across = across.reshape(last - first, shape[1], SUPER)
-    total = across[..., 0].copy()
-    for k in range(1, SUPER):
-        total += across[..., k]
+    part = inner[first * SUPER : last * SUPER].reshape(last - first, SUPER, shape[1], SUPER)
+    total = np.zeros((last - first, shape[1]), dtype=np.uint8)
+    for a in range(SUPER):
+        for b in range(SUPER):
+            total += part[:, a, :, b]
     cover = np.zeros(shape)
     cover[first:last] = total / float(SUPER * SUPER)
     return cover
@@ -341,7 +342,8 @@ class Canvas:
             x = min(x, left + cols)
             draw.line((x, top + rows + 1, x, top + rows + tick), fill=(0, 0, 0))
             _text(draw, font, s, x, bottom, "c", "t")
-            height = max(height, font.getbbox(s)[3] - font.getbbox(s)[1])
+            box = font.getbbox(s)
+            height = max(height, box[3] - box[1])
         _text(draw, font, "x", left + 0.5 * cols, bottom + height + 2 * pad, "c", "t")
         yt = nice_ticks(float(self.lo[1]), float(self.hi[1]), max(2, rows // 55))
         width = 0.0
