@@ -30,6 +30,7 @@ import numpy as np
 from pfem2x import fem
 from pfem2x.compat import MPI, PETSc
 from pfem2x.mesh import basis_gradients
+from pfem2x.particles import _kernels as K
 
 __all__ = ["CellwiseForm", "p1_gradient", "p1_laplacian", "p1_lumped_mass"]
 
@@ -97,7 +98,10 @@ class CellwiseForm:
         (owned and ghost), as the PETSc matrix's local-to-global maps number them;
         ``cols`` is ``None`` for a vector.
     n_rows, n_cols
-        Local unrolled rows and columns (owned + ghosts).
+        Local unrolled rows and columns (owned + ghosts). The structure is built by a
+        counting sort of the entries by row and an insertion sort of each row's few
+        entries by column (:func:`pfem2x.particles._kernels.entry_structure`), in the
+        order of a stable sort of their keys ``row * n_cols + col``.
     """
 
     def __init__(
@@ -109,32 +113,32 @@ class CellwiseForm:
         n_cols: int = 1,
     ):
         n, nr = rows.shape
-        E = E.reshape(n, nr, -1)
-        r = rows.astype(np.int64)[:, :, None] * n_cols
-        key = (r if cols is None else r + cols[:, None, :]).reshape(-1)  # (n, nr, nc) entries
-        order = np.argsort(key, kind="stable")
-        keys = key[order]
-        new = np.ones(len(keys), dtype=bool)
-        np.not_equal(keys[1:], keys[:-1], out=new[1:])
-        first = np.flatnonzero(new)
-        unique = keys[first]
-        unique_rows = unique // n_cols
+        E = np.ascontiguousarray(E.reshape(n, nr, -1), dtype=np.float64)
+        cols = np.zeros((n, 1), dtype=np.int64) if cols is None else cols
+        indptr, indices, entry_rows, s_ptr, s_cell, s_val = K.entry_structure(
+            np.ascontiguousarray(rows, dtype=np.int64),
+            np.ascontiguousarray(cols, dtype=np.int64),
+            E,
+            int(n_rows),
+        )
         #: the structure of the re-assembled rows (local indices, CSR)
-        self.indptr = np.searchsorted(unique_rows, np.arange(n_rows + 1)).astype(PETSc.IntType)
-        self.indices = (unique - unique_rows * n_cols).astype(PETSc.IntType)
+        self.indptr = indptr.astype(PETSc.IntType)
+        self.indices = indices.astype(PETSc.IntType)
         #: the row of each entry (a vector's entries: one per row that an owned cell touches)
-        self._entry_rows = unique_rows
+        self._entry_rows = entry_rows
         self.n_rows = n_rows
         # S: the structure's entries from the cells' coefficients, (n_entries, n_owned);
-        # PETSc uses these arrays in place (kept here): each row's cells ascend (stable sort)
+        # PETSc uses these arrays in place (kept here): each row's cells ascend
         self._csr = (
-            np.append(first, len(keys)).astype(PETSc.IntType),
-            (order // E[0].size).astype(PETSc.IntType),  # the cell of each entry
-            np.ascontiguousarray(E.ravel()[order], dtype=PETSc.ScalarType),
+            s_ptr.astype(PETSc.IntType),
+            s_cell.astype(PETSc.IntType, copy=False),
+            s_val.astype(PETSc.ScalarType, copy=False),
         )
-        self._S = PETSc.Mat().createAIJWithArrays((len(unique), n), self._csr, comm=PETSc.COMM_SELF)
+        self._S = PETSc.Mat().createAIJWithArrays(
+            (len(indices), n), self._csr, comm=PETSc.COMM_SELF
+        )
         self._k = PETSc.Vec().createSeq(n, comm=PETSc.COMM_SELF)
-        self._values = PETSc.Vec().createSeq(len(unique), comm=PETSc.COMM_SELF)
+        self._values = PETSc.Vec().createSeq(len(indices), comm=PETSc.COMM_SELF)
         #: one process: the matrix over the value array :attr:`_own_values` (see adopt)
         self._own: Any = None
         self._own_values: Any = None

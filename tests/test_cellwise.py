@@ -188,3 +188,53 @@ def test_a_reassembly_reaches_the_solver_that_uses_the_matrix():
     err = mesh.comm.allreduce(float(np.max(np.abs(2.0 * x2.array - x1.array))), op=MPI.MAX)
     ref = mesh.comm.allreduce(float(np.max(np.abs(x1.array))), op=MPI.MAX)
     assert ref > 0.0 and err <= 1e-8 * ref
+
+
+def _sorted_structure(rows, cols, E, n_cols):
+    """The structure by a stable sort of the element entries' keys (the reference)."""
+    n, nr = rows.shape
+    E = E.reshape(n, nr, -1)
+    key = (rows.astype(np.int64)[:, :, None] * n_cols + cols[:, None, :]).reshape(-1)
+    order = np.argsort(key, kind="stable")
+    keys = key[order]
+    first = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+    unique = keys[first]
+    return (
+        unique // n_cols,
+        unique % n_cols,
+        np.append(first, len(keys)),
+        order // E[0].size,
+        E.ravel()[order],
+    )
+
+
+@pytest.mark.parametrize("case", ["random", "p1"])
+def test_entry_structure_is_the_stable_sort_of_the_entry_keys(case):
+    """Distinct entries in (row, column) order, each one's cells ascending, its values."""
+    from pfem2x.particles import _kernels as K
+
+    rng = np.random.default_rng(5)
+    if case == "random":  # repeated rows and (row, column) pairs inside a cell too
+        n, nr, nc, n_rows, n_cols = 300, 4, 3, 40, 25
+        rows = rng.integers(0, n_rows, (n, nr))
+        cols = rng.integers(0, n_cols, (n, nc))
+        E = rng.standard_normal((n, nr, nc))
+    else:
+        d = build_mesh(MPI.COMM_SELF, "rectangle", [[0, 0], [1, 2]], [7, 11], "left/right")
+        Q = compat.function_space(d.mesh, 1)
+        V = compat.function_space(d.mesh, 1, shape=(2,))
+        E, rows, cols = cellwise.p1_gradient(
+            geometry_table(d.mesh), compat.dofmap_array(V), compat.dofmap_array(Q), 2
+        )
+        n_rows, n_cols = cellwise.local_size(V), cellwise.local_size(Q)
+        rows, cols = rows.astype(np.int64), cols.astype(np.int64)
+    indptr, indices, entry_rows, s_ptr, s_cell, s_val = K.entry_structure(
+        rows, cols, np.ascontiguousarray(E.reshape(len(rows), rows.shape[1], -1)), n_rows
+    )
+    ref_rows, ref_cols, ref_ptr, ref_cell, ref_val = _sorted_structure(rows, cols, E, n_cols)
+    assert np.array_equal(entry_rows, ref_rows)
+    assert np.array_equal(indices, ref_cols)
+    assert np.array_equal(indptr, np.searchsorted(ref_rows, np.arange(n_rows + 1)))
+    assert np.array_equal(s_ptr, ref_ptr)
+    assert np.array_equal(s_cell, ref_cell)
+    assert np.array_equal(s_val, ref_val)
