@@ -1,6 +1,6 @@
 #!/bin/bash
 # Re-creates the runs of docs/data/rt-reference into studies/rt-reference (full outputs;
-# about 2.5 CPU hours in all; interFoam needs `apt-get install openfoam`).
+# about 3 CPU hours in all; interFoam needs `apt-get install openfoam`).
 # Usage: bash docs/data/rt-reference/run.sh   (from the repository root)
 set -euo pipefail
 OUT=studies/rt-reference
@@ -34,6 +34,17 @@ run ls_lr_aco0.5 --set method.frame=eulerian --set time.courant=0.5 --set time.a
 run pf_lr_co0.5  --set time.courant=0.5
 run ls_lr_co4    --set method.frame=eulerian --set time.courant=4
 run pf_lr_co8    --set time.courant=8
+# PFEM-2 with the scene's keys in h near the dt limit (to tau = 2.5), and with the lagged pressure
+run pfh50_co0.125 --set time.courant=0.125 --set "mesh.cells=[50,200]"
+run pfh100_co0.5  --set time.courant=0.5
+run pfh200_co2    --set time.courant=2 --set "mesh.cells=[200,800]"
+run pfh100_co8
+LAG='flow.explicit_pressure="lagged"'
+run pfh50_co0.125_lagged --set time.courant=0.125 --set "mesh.cells=[50,200]" --set "$LAG"
+run pfh100_co0.5_lagged  --set time.courant=0.5 --set "$LAG"
+run pfh200_co2_lagged    --set time.courant=2 --set "mesh.cells=[200,800]" --set "$LAG" \
+  || echo "pfh200_co2_lagged: diverged (as stored: at tau = 1.89)"
+run pfh100_co8_lagged    --set "$LAG"
 # interFoam (OpenFOAM v1912): centred spike at dt = 0.001, and 200 x 800 at dt = 0.004 to tau = 2
 CASE=("$PY" benchmarks/interfoam_case.py)
 "${CASE[@]}" make "$OUT/interfoam/s100_dt0.001_signm" --nx 100 --ny 400 --dt 0.001 --sign -1 --overwrite
