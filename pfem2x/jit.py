@@ -141,6 +141,7 @@ def exercise_particles() -> None:
     from pfem2x import particles as P  # noqa: PLC0415
     from pfem2x.compat import MPI, dolfinx  # noqa: PLC0415
     from pfem2x.mesh import build_mesh  # noqa: PLC0415
+    from pfem2x.particles import _kernels as K  # noqa: PLC0415
 
     d = build_mesh(MPI.COMM_SELF, "rectangle", [[0.0, 0.0], [1.0, 1.0]], [3, 3])
     g = d.gdim
@@ -202,13 +203,17 @@ def exercise_particles() -> None:
     drop[::3] = True
     cloud.remove(drop)
     P.rebalance(cloud, 6, 0, seed=4, fallback={"T": T, "u": u})
+    K.share_drop(cloud.cells, cloud.pmesh.n_cells, 0.5)  # (flow.predictor_particles)
+    one = np.zeros((1, 3), dtype=np.int64)  # the cellwise operators' structure
+    K.entry_structure(one, one, np.zeros((1, 3, 3)), 1)
     _exercise_interface(xv[:4])
 
 
 def _exercise_interface(points: Any) -> None:
     """The flow's compiled kernels once: interface geometry (balanced gravity, cut-cell
-    densities), the per-pass loads of :mod:`pfem2x.physics.flow.loads` and the per-cell
-    velocity measures of the diagnostics."""
+    densities, the curvature's circle fits), the per-pass loads of
+    :mod:`pfem2x.physics.flow.loads` and the per-cell velocity measures of the
+    diagnostics."""
     import numpy as np  # noqa: PLC0415
 
     from pfem2x.physics.flow._kernels import (  # noqa: PLC0415
@@ -221,6 +226,11 @@ def _exercise_interface(points: Any) -> None:
         pressure_load_kernel,
     )
     from pfem2x.physics.flow.balanced import closest_points  # noqa: PLC0415
+    from pfem2x.physics.flow.curvature import (  # noqa: PLC0415
+        circle_misfit,
+        closest_pairs_within,
+        distance_curvature,
+    )
     from pfem2x.physics.flow.interface import (  # noqa: PLC0415
         cut_segments,
         positive_fraction,
@@ -229,6 +239,17 @@ def _exercise_interface(points: Any) -> None:
 
     seg = np.array([[[0.0, 0.5], [1.0, 0.5]]])
     closest_points(points, seg)
+    # the curvature's fits on a circle (surface tension)
+    th = np.linspace(0.0, 2.0 * np.pi, 25)
+    ring = 0.5 + 0.3 * np.column_stack([np.cos(th), np.sin(th)])
+    segs = np.stack([ring[:-1], ring[1:]], axis=1)
+    normals = segs.mean(axis=1) - 0.5
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    grid = np.stack(np.meshgrid(np.linspace(0, 1, 11), np.linspace(0, 1, 11)), -1).reshape(-1, 2)
+    dist = 0.3 - np.linalg.norm(grid - 0.5, axis=1)
+    _, _, coef = distance_curvature(segs, normals, grid, dist, 0.25)
+    circle_misfit(segs, normals, coef, ring, 0.25)
+    closest_pairs_within(grid, segs, 0.25, 1e-12)
     positive_fraction(np.array([[1.0, -1.0, 0.5]]))
     segment_distance(points, seg, cap=0.25)
     dofs = np.array([[0, 1, 2]], dtype=np.int32)

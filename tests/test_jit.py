@@ -3,6 +3,8 @@
 import os
 import time
 
+import pytest
+
 from pfem2x import jit
 
 
@@ -133,3 +135,31 @@ def test_the_package_is_byte_compiled_whatever_python_may_write(tmp_path, monkey
     os.utime(tmp_path / "a.py", ns=(before + 10**9, before + 10**9))
     assert jit.compile_bytecode(tmp_path)
     assert pyc[0].stat().st_mtime_ns != before, "a stale .pyc is written again"
+
+
+@pytest.mark.slow
+def test_after_the_warm_up_no_scene_run_compiles_a_kernel(tmp_path):
+    """``python -m pfem2x.jit`` (``make setup``) compiles every kernel the scenes call."""
+    import subprocess
+    import sys
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), "NUMBA_DEBUG_CACHE": "1"}
+    subprocess.run([sys.executable, "-m", "pfem2x.jit"], check=True, env=env, capture_output=True)
+    quiet = ["--set", "output.png=false", "--set", "output.fields=false"]
+    runs = [
+        ("rayleigh-taylor", "lagrangian"),  # the first pass's share, the cellwise operators
+        ("dam-break", "lagrangian"),
+        ("rising-bubble", "lagrangian"),  # the curvature's fits
+        ("rising-bubble", "eulerian"),
+    ]
+    for scene, frame in runs:
+        out = tmp_path / f"{scene}-{frame}"
+        r = subprocess.run(
+            [sys.executable, "-m", "pfem2x", "run", scene, "--variant", "small", *quiet,
+             "--set", f'method.frame="{frame}"', "--out", str(out)],
+            env=env, capture_output=True, text=True,
+        )  # fmt: skip
+        assert r.returncode == 0, r.stderr
+        compiled = [ln for ln in (r.stdout + r.stderr).splitlines() if "index saved" in ln]
+        assert not compiled, (scene, frame, compiled)
+        assert jit.MESSAGE not in r.stderr
