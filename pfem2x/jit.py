@@ -141,7 +141,6 @@ def exercise_particles() -> None:
     from pfem2x import particles as P  # noqa: PLC0415
     from pfem2x.compat import MPI, dolfinx  # noqa: PLC0415
     from pfem2x.mesh import build_mesh  # noqa: PLC0415
-    from pfem2x.particles import _kernels as K  # noqa: PLC0415
 
     d = build_mesh(MPI.COMM_SELF, "rectangle", [[0.0, 0.0], [1.0, 1.0]], [3, 3])
     g = d.gdim
@@ -203,10 +202,20 @@ def exercise_particles() -> None:
     drop[::3] = True
     cloud.remove(drop)
     P.rebalance(cloud, 6, 0, seed=4, fallback={"T": T, "u": u})
-    K.share_drop(cloud.cells, cloud.pmesh.n_cells, 0.5)  # (flow.predictor_particles)
-    one = np.zeros((1, 3), dtype=np.int64)  # the cellwise operators' structure
-    K.entry_structure(one, one, np.zeros((1, 3, 3)), 1)
+    _exercise_flow_particles(cloud)
     _exercise_interface(xv[:4])
+
+
+def _exercise_flow_particles(cloud: Any) -> None:
+    """The PFEM-2 frame's own particle kernels: the first pass's share of each cell's
+    particles (``flow.predictor_particles``) and the cellwise operators' structure."""
+    import numpy as np  # noqa: PLC0415
+
+    from pfem2x.particles import _kernels as K  # noqa: PLC0415
+
+    K.share_drop(cloud.cells, cloud.pmesh.n_cells, 0.5)
+    one = np.zeros((1, 3), dtype=np.int64)
+    K.entry_structure(one, one, np.zeros((1, 3, 3)), 1)
 
 
 def _exercise_interface(points: Any) -> None:
