@@ -203,7 +203,7 @@ def exercise_particles() -> None:
     cloud.remove(drop)
     P.rebalance(cloud, 6, 0, seed=4, fallback={"T": T, "u": u})
     _exercise_flow_particles(cloud)
-    _exercise_interface(xv[:4])
+    _exercise_interface(xv[:4], not compat.dofmap_array(V).flags.writeable)
 
 
 def _exercise_flow_particles(cloud: Any) -> None:
@@ -218,11 +218,12 @@ def _exercise_flow_particles(cloud: Any) -> None:
     K.entry_structure(one, one, np.zeros((1, 3, 3)), 1)
 
 
-def _exercise_interface(points: Any) -> None:
+def _exercise_interface(points: Any, readonly_dofs: bool) -> None:
     """The flow's compiled kernels once: interface geometry (balanced gravity, cut-cell
     densities, the curvature's circle fits), the per-pass loads of
     :mod:`pfem2x.physics.flow.loads` and the per-cell velocity measures of the
-    diagnostics."""
+    diagnostics. ``readonly_dofs``: the kernels take DOLFINx's dofmaps as they come, which
+    DOLFINx 0.11 gives as read-only arrays (numba compiles a kernel for each kind)."""
     import numpy as np  # noqa: PLC0415
 
     from pfem2x.physics.flow._kernels import (  # noqa: PLC0415
@@ -262,6 +263,7 @@ def _exercise_interface(points: Any) -> None:
     positive_fraction(np.array([[1.0, -1.0, 0.5]]))
     segment_distance(points, seg, cap=0.25)
     dofs = np.array([[0, 1, 2]], dtype=np.int32)
+    dofs.flags.writeable = not readonly_dofs
     cell_velocity_kernel(np.zeros((3, 2)), dofs, np.zeros((1, 3, 2)))
     cut_segments(np.array([[1.0, -1.0, 0.5]]), np.zeros((1, 3, 2)))
     mark_mixed_cells(np.array([1.0, -1.0, 0.5]), dofs, np.zeros(3))
