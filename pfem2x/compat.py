@@ -287,8 +287,46 @@ def preconditioner(requested: str = "auto") -> str:
     return requested
 
 
+def _equispaced_coordinates(expr: Any) -> None:
+    """Give the meshes of ``expr`` the coordinate element FFCx 0.5 compiles them with.
+
+    When DOLFINx 0.5.2's form compiler (FFCx 0.5) compiles a form, it replaces
+    the coordinate element of the form's mesh, in place, by its equispaced
+    variant; when it finds the form in its cache, it does not. A form's cache
+    key contains that element, so every form made after a compile in a process
+    had other keys than the same forms in a process that found its first form
+    cached: each new run compiled one more form (about 0.4 s) until the cache
+    held both keys of every form. Replacing the element before any form is
+    keyed gives every process the same keys; the compiled code is the same,
+    because FFCx compiles with the equispaced element in either case. Later
+    FFCx versions (DOLFINx 0.11) leave the mesh alone: nothing to do there.
+    """
+    import ufl  # noqa: PLC0415
+
+    forms = expr if isinstance(expr, list | tuple) else [expr]
+    for f in forms:
+        if isinstance(f, list | tuple):
+            _equispaced_coordinates(f)
+            continue
+        for domain in f.ufl_domains() if hasattr(f, "ufl_domains") else ():
+            element = getattr(domain, "_ufl_coordinate_element", None)
+            sub = getattr(element, "_sub_element", None)
+            if sub is None or getattr(sub, "_variant", "") is not None:
+                continue
+            equi = ufl.FiniteElement(
+                element.family(),
+                element.cell(),
+                element.degree(),
+                element.quadrature_scheme(),
+                variant="equispaced",
+            )
+            domain._ufl_coordinate_element = ufl.VectorElement(equi)
+
+
 def form(expr: Any) -> Any:
     """Compile a UFL form (same call on both versions)."""
+    if not NEW_API:
+        _equispaced_coordinates(expr)
     return dolfinx.fem.form(expr)
 
 
