@@ -15,7 +15,8 @@ loads only the specialisations it uses (a Rayleigh–Taylor run on one core star
 about 0.25 s sooner than after loading all of them).
 
 The cache is cold when the marker :data:`MARKER` that a completed warm-up leaves
-next to the cache files is missing or older than a kernel source (:data:`SOURCES`),
+next to the cache files is missing or older than a kernel source or this module
+(:data:`SOURCES`),
 when fewer cache index files are there than the warm-up left, or when the warm-up
 ran with another numba version (numba does not load code cached by another
 version). Should the check be wrong, the first kernel numba compiles during the
@@ -38,14 +39,16 @@ from typing import Any
 MESSAGE = "compiling particle kernels (first run after install or a kernel change)..."
 
 KERNELS = Path(__file__).resolve().parent / "particles" / "_kernels.py"
-#: Every module of numba kernels that :func:`exercise_particles` compiles: a change to
-#: any of them makes the cache cold.
+#: Every module of numba kernels that :func:`exercise_particles` compiles, and this
+#: module (which kernels the warm-up calls, with which argument types): a change to any
+#: of them makes the cache cold.
 SOURCES = (
     KERNELS,
     *(
         Path(__file__).resolve().parent / "physics" / "flow" / f
         for f in ("_kernels.py", "_load_kernels.py")
     ),
+    Path(__file__).resolve(),
 )
 _TAG = f"py{sys.version_info[0]}{sys.version_info[1]}"
 #: Left next to the cache files by a completed warm-up: the number of index files and
