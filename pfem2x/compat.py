@@ -287,8 +287,8 @@ def preconditioner(requested: str = "auto") -> str:
     return requested
 
 
-def _equispaced_coordinates(expr: Any) -> None:
-    """Give the meshes of ``expr`` the coordinate element FFCx 0.5 compiles them with.
+def stable_form_keys(mesh: Any) -> Any:
+    """Give ``mesh`` the coordinate element FFCx compiles forms with; returns ``mesh``.
 
     When DOLFINx 0.5.2's form compiler (FFCx 0.5) compiles a form, it replaces
     the coordinate element of the form's mesh, in place, by its equispaced
@@ -296,37 +296,34 @@ def _equispaced_coordinates(expr: Any) -> None:
     key contains that element, so every form made after a compile in a process
     had other keys than the same forms in a process that found its first form
     cached: each new run compiled one more form (about 0.4 s) until the cache
-    held both keys of every form. Replacing the element before any form is
-    keyed gives every process the same keys; the compiled code is the same,
-    because FFCx compiles with the equispaced element in either case. Later
-    FFCx versions (DOLFINx 0.11) leave the mesh alone: nothing to do there.
+    held both keys of every form. Replacing the element when the mesh is made,
+    before anything has keyed or hashed it, gives every process the same keys;
+    the compiled code is the same, because FFCx compiles with the equispaced
+    element in either case. Later FFCx versions (DOLFINx 0.11) leave the mesh
+    alone: nothing to do there.
     """
+    if NEW_API:
+        return mesh
+    domain = mesh.ufl_domain()
+    element = getattr(domain, "_ufl_coordinate_element", None)
+    sub = getattr(element, "_sub_element", None)
+    if sub is None or getattr(sub, "_variant", "") is not None:
+        return mesh
     import ufl  # noqa: PLC0415
 
-    forms = expr if isinstance(expr, list | tuple) else [expr]
-    for f in forms:
-        if isinstance(f, list | tuple):
-            _equispaced_coordinates(f)
-            continue
-        for domain in f.ufl_domains() if hasattr(f, "ufl_domains") else ():
-            element = getattr(domain, "_ufl_coordinate_element", None)
-            sub = getattr(element, "_sub_element", None)
-            if sub is None or getattr(sub, "_variant", "") is not None:
-                continue
-            equi = ufl.FiniteElement(
-                element.family(),
-                element.cell(),
-                element.degree(),
-                element.quadrature_scheme(),
-                variant="equispaced",
-            )
-            domain._ufl_coordinate_element = ufl.VectorElement(equi)
+    equi = ufl.FiniteElement(
+        element.family(),
+        element.cell(),
+        element.degree(),
+        element.quadrature_scheme(),
+        variant="equispaced",
+    )
+    domain._ufl_coordinate_element = ufl.VectorElement(equi)
+    return mesh
 
 
 def form(expr: Any) -> Any:
     """Compile a UFL form (same call on both versions)."""
-    if not NEW_API:
-        _equispaced_coordinates(expr)
     return dolfinx.fem.form(expr)
 
 

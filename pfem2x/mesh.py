@@ -315,6 +315,7 @@ def build_mesh(
         mesh, cell_tags, facet_tags = read_geo(comm, file)
     else:
         raise MeshError(f"mesh.kind: unknown kind {kind!r}")
+    compat.stable_form_keys(mesh)
     gdim = mesh.geometry.dim
     table = geometry_table(mesh)
     per = tuple(bool(p) for p in (periodic or [False] * gdim))
