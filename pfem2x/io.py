@@ -331,41 +331,29 @@ class ParticleWriter:
 def chain_segments(segs: np.ndarray, tol: float = 1e-9) -> list[np.ndarray]:
     """Join segments ``(m, 2, 2)`` that share end points into polylines (output only).
 
+    End points within ``tol`` times the extent (at least 1) are one point. Open ends
+    start polylines first, so that open curves come out whole.
+
     Returns
     -------
     list of ``(k, 2)`` arrays, open or closed (first point repeated) polylines.
     """
     if len(segs) == 0:
         return []
-    pts = segs.reshape(-1, 2)
+    from pfem2x.particles._kernels import chain_walk  # noqa: PLC0415 (numba: on first use)
+
+    pts = np.asarray(segs, dtype=float).reshape(-1, 2)
     scale = max(float(np.ptp(pts, axis=0).max()), 1.0)
     keys = np.round(pts / (tol * scale)).astype(np.int64)
-    _, ids = np.unique(keys, axis=0, return_inverse=True)
-    ids = ids.reshape(-1, 2)
-    nbrs: dict[int, list[int]] = {}
-    for k, (a, b) in enumerate(ids.tolist()):
-        nbrs.setdefault(a, []).append(k)
-        nbrs.setdefault(b, []).append(k)
-    used = np.zeros(len(ids), dtype=bool)
-    point = {int(i): pts[2 * k + j] for k, row in enumerate(ids) for j, i in enumerate(row)}
-    lines = []
-    # start at open ends first so open curves come out whole
-    starts = [v for v, ks in nbrs.items() if len(ks) == 1] + list(nbrs)
-    for v0 in starts:
-        if all(used[k] for k in nbrs[v0]):
-            continue
-        line, v = [v0], v0
-        while True:
-            nxt = [k for k in nbrs[v] if not used[k]]
-            if not nxt:
-                break
-            k = nxt[0]
-            used[k] = True
-            a, b = ids[k]
-            v = int(b if a == v else a)
-            line.append(v)
-        lines.append(np.array([point[i] for i in line]))
-    return lines
+    by_key = np.lexsort(keys.T[::-1])  # the points' ids: their keys' ranks
+    k = keys[by_key]
+    step = np.ones(len(k), dtype=np.int64)
+    step[0] = 0
+    step[1:] = (k[1:] != k[:-1]).any(axis=1)
+    ids = np.empty(len(k), dtype=np.int64)
+    ids[by_key] = np.cumsum(step)
+    order, starts = chain_walk(ids.reshape(-1, 2), int(ids.max()) + 1)
+    return np.split(pts[order], starts[1:-1])
 
 
 def write_interface(comm: MPI.Comm, path: str | os.PathLike, segs: np.ndarray) -> None:
@@ -375,8 +363,8 @@ def write_interface(comm: MPI.Comm, path: str | os.PathLike, segs: np.ndarray) -
         return
     lines = chain_segments(np.concatenate(parts) if parts else np.zeros((0, 2, 2)))
     rows = ["line,x,y"]
-    for i, ln in enumerate(lines):
-        rows.extend(f"{i},{x:.9g},{y:.9g}" for x, y in ln)
+    for i, ln in enumerate(lines):  # (one format per polyline)
+        rows.append((f"{i},%.9g,%.9g\n" * len(ln))[:-1] % tuple(ln.ravel().tolist()))
     atomic_write_text(path, "\n".join(rows) + "\n")
 
 

@@ -223,12 +223,13 @@ def _exercise_flow_particles(cloud: Any) -> None:
 
 def _exercise_interface(points: Any, readonly_dofs: bool) -> None:
     """The flow's compiled kernels once: interface geometry (balanced gravity, cut-cell
-    densities, the curvature's circle fits), the per-pass loads of
+    densities, the curvature's circle fits, the interface files' polylines), the loads of
     :mod:`pfem2x.physics.flow.loads` and the per-cell velocity measures of the
     diagnostics. ``readonly_dofs``: the kernels take DOLFINx's dofmaps as they come, which
     DOLFINx 0.11 gives as read-only arrays (numba compiles a kernel for each kind)."""
     import numpy as np  # noqa: PLC0415
 
+    from pfem2x.io import chain_segments  # noqa: PLC0415
     from pfem2x.physics.flow._kernels import (  # noqa: PLC0415
         cell_velocity_kernel,
         mark_mixed_cells,
@@ -263,6 +264,7 @@ def _exercise_interface(points: Any, readonly_dofs: bool) -> None:
     _, _, coef = distance_curvature(segs, normals, grid, dist, 0.25)
     circle_misfit(segs, normals, coef, ring, 0.25)
     closest_pairs_within(grid, segs, 0.25, 1e-12)
+    chain_segments(segs)
     positive_fraction(np.array([[1.0, -1.0, 0.5]]))
     segment_distance(points, seg, cap=0.25)
     dofs = np.array([[0, 1, 2]], dtype=np.int32)

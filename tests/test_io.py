@@ -28,6 +28,53 @@ def test_chain_segments_open_and_closed():
     assert np.allclose(closed[0], closed[-1])
 
 
+def _chain_reference(segs, tol=1e-9):
+    """The walk of :func:`chain_segments` written plainly (dicts and lists)."""
+    pts = segs.reshape(-1, 2)
+    scale = max(float(np.ptp(pts, axis=0).max()), 1.0)
+    keys = [tuple(k) for k in np.round(pts / (tol * scale)).astype(np.int64).tolist()]
+    ids = [sorted(set(keys)).index(k) for k in keys]
+    nbrs, point = {}, {}
+    for i, v in enumerate(ids):
+        nbrs.setdefault(v, []).append(i // 2)
+        point[v] = pts[i]
+    used = [False] * len(segs)
+    lines = []
+    for v0 in [v for v, ks in nbrs.items() if len(ks) == 1] + list(nbrs):
+        while not all(used[k] for k in nbrs[v0]):
+            lines.append(_walk(v0, nbrs, ids, used, point))
+    return lines
+
+
+def _walk(v0, nbrs, ids, used, point):
+    line, v = [v0], v0
+    while nxt := [k for k in nbrs[v] if not used[k]]:
+        used[nxt[0]] = True
+        a, b = ids[2 * nxt[0]], ids[2 * nxt[0] + 1]
+        v = b if a == v else a
+        line.append(v)
+    return np.array([point[i] for i in line])
+
+
+def test_chain_segments_walks_junctions_and_loops_as_the_plain_walk():
+    """Random segments on a small lattice (junctions of 3-6 segments, loops, repeated and
+    zero-length segments, end points that differ by less than the tolerance): the same
+    polylines as the plain walk, and every segment in one of them (a walk from a
+    junction once only left some out)."""
+    rng = np.random.default_rng(3)
+    for trial in range(60):
+        n = int(rng.integers(1, 40))
+        segs = rng.integers(0, 6, size=(n, 2, 2)) * 0.5 - 1.0
+        if trial % 2:
+            segs = segs + rng.random(segs.shape) * 1e-12
+        lines = chain_segments(segs)
+        expected = _chain_reference(segs)
+        assert len(lines) == len(expected)
+        for got, want in zip(lines, expected, strict=True):
+            assert np.array_equal(got, want)
+        assert sum(len(ln) - 1 for ln in lines) == n  # every segment once
+
+
 def _vtp_parts(path):
     """The XML tree of a ``.vtp`` file (its appended block emptied) and that block's bytes."""
     import xml.etree.ElementTree as ET

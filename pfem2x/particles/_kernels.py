@@ -1495,6 +1495,80 @@ def counting_sort(cells, ncells):
 
 
 @njit(cache=True, error_model="numpy")
+def chain_walk(ids, n_points):
+    """Polylines of the segments ``ids (m, 2)`` (point ids ``< n_points``) that share ends.
+
+    Returns ``(order, starts)``: the polylines one after another as indices into the
+    segments' end points ``ids.ravel()`` (of a point, its last appearance), and each
+    polyline's first place in ``order`` (one more: the end). The walk: the points in
+    order of their first appearance, those at an open end (one segment) first, then
+    all; from each point, while it has an unused segment, a polyline: the current
+    point's first unused segment (in order of appearance) to its other end, until the
+    current point has none left. Every segment is in one polyline.
+    """
+    m = ids.shape[0]
+    ptr = np.zeros(n_points + 1, dtype=np.int64)
+    for k in range(m):
+        ptr[ids[k, 0] + 1] += 1
+        ptr[ids[k, 1] + 1] += 1
+    for i in range(n_points):
+        ptr[i + 1] += ptr[i]
+    pos = ptr[:-1].copy()
+    inc = np.empty(2 * m, dtype=np.int64)
+    where = np.empty(n_points, dtype=np.int64)
+    appear = np.empty(n_points, dtype=np.int64)
+    seen = np.zeros(n_points, dtype=np.bool_)
+    n_seen = 0
+    for k in range(m):
+        for j in range(2):
+            v = ids[k, j]
+            inc[pos[v]] = k
+            pos[v] += 1
+            where[v] = 2 * k + j
+            if not seen[v]:
+                seen[v] = True
+                appear[n_seen] = v
+                n_seen += 1
+    used = np.zeros(m, dtype=np.bool_)
+    order = np.empty(2 * m + 1, dtype=np.int64)
+    starts = np.empty(m + 1, dtype=np.int64)
+    n_lines = 0
+    n = 0
+    for sweep in range(2):
+        for a in range(n_seen):
+            v0 = appear[a]
+            if sweep == 0 and ptr[v0 + 1] - ptr[v0] != 1:
+                continue
+            while True:  # (a junction may start several polylines)
+                free = False
+                for q in range(ptr[v0], ptr[v0 + 1]):
+                    if not used[inc[q]]:
+                        free = True
+                        break
+                if not free:
+                    break
+                starts[n_lines] = n
+                n_lines += 1
+                order[n] = where[v0]
+                n += 1
+                v = v0
+                while True:
+                    k = -1
+                    for q in range(ptr[v], ptr[v + 1]):
+                        if not used[inc[q]]:
+                            k = inc[q]
+                            break
+                    if k < 0:
+                        break
+                    used[k] = True
+                    v = ids[k, 1] if ids[k, 0] == v else ids[k, 0]
+                    order[n] = where[v]
+                    n += 1
+    starts[n_lines] = n
+    return order[:n], starts[: n_lines + 1]
+
+
+@njit(cache=True, error_model="numpy")
 def entry_structure(rows, cols, E, n_rows):
     """The sparse structure of the element tensors ``E (n, nr, nc)`` at ``(rows, cols)``.
 
