@@ -16,16 +16,63 @@ from typing import Any
 if importlib.util.find_spec("dolfinx_solver") is not None:  # pragma: no cover - 0.11 only
     import dolfinx_solver  # noqa: F401
 
+import contextlib
+import importlib.metadata
 import logging
+import sys
+import types
+from collections.abc import Iterator
 
-import dolfinx
-import dolfinx.fem
-import dolfinx.fem.petsc
-import dolfinx.geometry
-import dolfinx.mesh
 import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
+
+
+@contextlib.contextmanager
+def _versions_without_pkg_resources() -> Iterator[None]:
+    """Let UFL and FFCx read their versions without importing ``pkg_resources``.
+
+    DOLFINx 0.5.2's UFL and FFCx take their ``__version__`` from
+    ``pkg_resources.get_distribution``, and importing ``pkg_resources`` scans every
+    installed distribution (60-90 ms of each process's start). While this context is
+    open, ``import pkg_resources`` gives a stand-in whose ``get_distribution(name)``
+    reads the version from ``importlib.metadata`` (the same metadata) and defers to the
+    real module for anything it cannot answer; afterwards the stand-in is gone, so a
+    later ``import pkg_resources`` imports the real one. Nothing changes where
+    ``pkg_resources`` is imported already, or for packages that do not use it (DOLFINx
+    0.11's).
+    """
+    if "pkg_resources" in sys.modules:
+        yield
+        return
+    stand_in = types.ModuleType("pkg_resources")
+
+    def get_distribution(name: str) -> Any:
+        try:
+            return types.SimpleNamespace(version=importlib.metadata.version(name))
+        except Exception:  # the real module's answer (or its error)
+            sys.modules.pop("pkg_resources", None)
+            import pkg_resources  # noqa: PLC0415
+
+            return pkg_resources.get_distribution(name)
+
+    stand_in.get_distribution = get_distribution  # type: ignore[attr-defined]
+    sys.modules["pkg_resources"] = stand_in
+    try:
+        yield
+    finally:
+        if sys.modules.get("pkg_resources") is stand_in:
+            del sys.modules["pkg_resources"]
+
+
+with _versions_without_pkg_resources():
+    import dolfinx
+    import dolfinx.fem
+    import dolfinx.fem.petsc
+    import dolfinx.geometry
+    import dolfinx.mesh
+    import ffcx  # noqa: F401 (imported by DOLFINx: named so that both come under the stand-in)
+    import ufl  # noqa: F401
 
 __all__ = [
     "DOLFINX_VERSION",
