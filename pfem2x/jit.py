@@ -16,11 +16,10 @@ about 0.25 s sooner than after loading all of them).
 
 The cache is cold when the marker :data:`MARKER` that a completed warm-up leaves
 next to the cache files is missing or older than a kernel source or this module
-(:data:`SOURCES`),
-when fewer cache index files are there than the warm-up left, or when the warm-up
-ran with another numba version (numba does not load code cached by another
-version). Should the check be wrong, the first kernel numba compiles during the
-run is announced (a numba event listener).
+(:data:`SOURCES`), when fewer cache index files are there than the warm-up left, or
+when the warm-up ran with another numba version (numba does not load code cached by
+another version). Should the check be wrong, the first kernel numba compiles during
+the run is announced (a numba event listener).
 """
 
 from __future__ import annotations
