@@ -356,8 +356,6 @@ def stable_form_keys(mesh: Any) -> Any:
     sub = getattr(element, "_sub_element", None)
     if sub is None or getattr(sub, "_variant", "") is not None:
         return mesh
-    import ufl  # noqa: PLC0415
-
     equi = ufl.FiniteElement(
         element.family(),
         element.cell(),
