@@ -14,6 +14,9 @@ nothing: each kernel loads from the cache when a run first calls it, so a run
 loads only the specialisations it uses (a Rayleigh–Taylor run on one core starts
 about 0.25 s sooner than after loading all of them).
 
+After the warm-up, ``python -m pfem2x.jit`` also compiles the same specialisations
+ahead of time (:mod:`pfem2x.aot`), so that runs need neither numba nor its cache.
+
 The cache is cold when the marker :data:`MARKER` that a completed warm-up leaves
 next to the cache files is missing or older than a kernel source or this module
 (:data:`SOURCES`), when fewer cache index files are there than the warm-up left, or
@@ -25,65 +28,33 @@ the run is announced (a numba event listener).
 from __future__ import annotations
 
 import argparse
-import hashlib
-import importlib.metadata
+import contextlib
+import importlib.machinery
+import json
 import os
+import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
+
+import numpy as np
+
+from pfem2x import aot
+from pfem2x.aot import JIT_SOURCES, KERNELS, TAG, cache_dir, numba_version
 
 #: What a run prints (rank 0, not with ``--quiet``) while the kernels compile.
 MESSAGE = "compiling particle kernels (first run after install or a kernel change)..."
 
-KERNELS = Path(__file__).resolve().parent / "particles" / "_kernels.py"
 #: Every module of numba kernels that :func:`exercise_particles` compiles, and this
 #: module (which kernels the warm-up calls, with which argument types): a change to any
 #: of them makes the cache cold.
-SOURCES = (
-    KERNELS,
-    *(
-        Path(__file__).resolve().parent / "physics" / "flow" / f
-        for f in ("_kernels.py", "_load_kernels.py")
-    ),
-    Path(__file__).resolve(),
-)
-_TAG = f"py{sys.version_info[0]}{sys.version_info[1]}"
+SOURCES = JIT_SOURCES
+_TAG = TAG
 #: Left next to the cache files by a completed warm-up: the number of index files and
 #: the numba version.
 MARKER = f"_kernels.warm.{_TAG}"
-
-
-def cache_dir() -> Path:
-    """The folder that holds the kernels' numba cache files (numba's own choice).
-
-    Returns
-    -------
-    Path
-        Below ``NUMBA_CACHE_DIR`` when that is set; else
-        ``pfem2x/particles/__pycache__`` when it is writable (a clone or an
-        editable install); else below the user's cache folder.
-    """
-    src = KERNELS.parent
-    # numba's name for a source folder in a cache folder of its own
-    sub = f"{src.name}_{hashlib.sha1(str(src).encode()).hexdigest()}"
-    override = os.environ.get("NUMBA_CACHE_DIR")
-    if override:
-        return Path(override) / sub
-    tree = src / "__pycache__"
-    if os.access(tree if tree.exists() else src, os.W_OK):
-        return tree
-    home = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(home) / "numba" / sub
-
-
-def numba_version() -> str:
-    """The installed numba's version, from its package metadata (numba is not imported)."""
-    try:
-        return importlib.metadata.version("numba")
-    except importlib.metadata.PackageNotFoundError:
-        return "unknown"
 
 
 def _index_files(folder: Path) -> list[Path]:
@@ -126,6 +97,16 @@ def _mark_warm() -> None:
         pass
 
 
+def _through_numba() -> None:
+    """Every kernel through numba's JIT in this process: numba's cache is what the
+    exercise fills, also where a compiled module would serve (:func:`pfem2x.aot.use_numba`)."""
+    import pfem2x.particles._kernels  # noqa: F401, PLC0415 - (the three kernel modules
+    import pfem2x.physics.flow._kernels  # noqa: F401, PLC0415 - before use_numba)
+    import pfem2x.physics.flow._load_kernels  # noqa: F401, PLC0415
+
+    aot.use_numba()
+
+
 def exercise_particles() -> None:
     """Run every particle operation once on a tiny mesh of this process alone.
 
@@ -137,13 +118,12 @@ def exercise_particles() -> None:
     time.
     """
     # imported here so that the cache check (``make setup``) stays cheap
-    import numpy as np  # noqa: PLC0415
-
     from pfem2x import compat  # noqa: PLC0415
     from pfem2x import particles as P  # noqa: PLC0415
     from pfem2x.compat import MPI, dolfinx  # noqa: PLC0415
     from pfem2x.mesh import build_mesh  # noqa: PLC0415
 
+    _through_numba()
     d = build_mesh(MPI.COMM_SELF, "rectangle", [[0.0, 0.0], [1.0, 1.0]], [3, 3])
     g = d.gdim
     V = compat.function_space(d.mesh, 1)
@@ -211,8 +191,6 @@ def exercise_particles() -> None:
 def _exercise_flow_particles(cloud: Any) -> None:
     """The PFEM-2 frame's own particle kernels: the first pass's share of each cell's
     particles (``flow.predictor_particles``) and the cellwise operators' structure."""
-    import numpy as np  # noqa: PLC0415
-
     from pfem2x.particles import _kernels as K  # noqa: PLC0415
 
     K.share_drop(cloud.cells, cloud.pmesh.n_cells, 0.5)
@@ -226,8 +204,6 @@ def _exercise_interface(points: Any, readonly_dofs: bool) -> None:
     :mod:`pfem2x.physics.flow.loads` and the per-cell velocity measures of the
     diagnostics. ``readonly_dofs``: the kernels take DOLFINx's dofmaps as they come, which
     DOLFINx 0.11 gives as read-only arrays (numba compiles a kernel for each kind)."""
-    import numpy as np  # noqa: PLC0415
-
     from pfem2x.io import chain_segments  # noqa: PLC0415
     from pfem2x.physics.flow._kernels import (  # noqa: PLC0415
         cell_velocity_kernel,
@@ -379,6 +355,159 @@ def warm_up(say: Callable[[str], Any] | None = None, comm: Any = None) -> float:
     return time.perf_counter() - t0
 
 
+def _aot_spec(t: Any) -> list:
+    """A numba argument type as a manifest entry (``ValueError``: not exportable)."""
+    from numba.core import types  # noqa: PLC0415
+    from numba.np.numpy_support import as_dtype  # noqa: PLC0415
+
+    if isinstance(t, types.Array):
+        return ["array", as_dtype(t.dtype).str, t.ndim, t.layout, not t.mutable]
+    if isinstance(t, types.BaseNamedTuple):
+        return ["tuple", t.instance_class.__name__, [_aot_spec(s) for s in t.types]]
+    if isinstance(t, types.BaseTuple):
+        return ["tuple", None, [_aot_spec(s) for s in t.types]]
+    if isinstance(t, types.Boolean):
+        return ["scalar", "bool"]
+    if isinstance(t, types.Integer | types.Float):
+        return ["scalar", str(as_dtype(t))]
+    raise ValueError(f"argument type {t} is not exported")
+
+
+@contextlib.contextmanager
+def _numpy_error_model() -> Iterator[None]:
+    """numba's ahead-of-time compiler with the kernels' ``error_model="numpy"``.
+
+    Its flags default to Python's error model (a division by zero raises); the
+    kernels are JIT-compiled with numpy's (it gives inf or nan).
+    """
+    from numba.pycc import compiler  # noqa: PLC0415
+
+    base = compiler.Flags
+
+    class NumpyErrors(base):  # type: ignore[misc, valid-type]
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            super().__init__(*args, **kwargs)
+            self.error_model = "numpy"
+
+    compiler.Flags = NumpyErrors
+    try:
+        yield
+    finally:
+        compiler.Flags = base
+
+
+def _aot_signatures(path: Path) -> int:
+    """Exercise the kernels under numba's JIT and pickle what they ran to ``path``.
+
+    ``{qualified name: [(argument types, return type), ...]}``; returns their number.
+    """
+    import pickle  # noqa: PLC0415
+
+    from numba.core.registry import CPUDispatcher  # noqa: PLC0415
+
+    exercise_particles()
+    sigs: dict[str, list] = {}
+    for modname in aot.KERNEL_MODULES:
+        for func in vars(sys.modules[modname]).values():
+            if isinstance(func, CPUDispatcher) and func.__module__ == modname:
+                for sig in func.signatures:
+                    ret = func.overloads[sig].signature.return_type
+                    sigs.setdefault(f"{modname}.{func.py_func.__qualname__}", []).append((sig, ret))
+    path.write_bytes(pickle.dumps(sigs))
+    return sum(len(v) for v in sigs.values())
+
+
+def _aot_compile(folder: Path, path: Path) -> int:
+    """Compile the specialisations pickled at ``path`` (:func:`_signatures`) into the
+    module and its manifest in ``folder``; returns their number.
+
+    A process of its own: numba's ahead-of-time compiler can fail to type a kernel
+    that numba's JIT compiled earlier in the same process.
+    """
+    import pickle  # noqa: PLC0415
+
+    from numba.pycc import CC  # noqa: PLC0415
+
+    sigs = pickle.loads(path.read_bytes())
+    digest = aot.source_hash()
+    cc = CC(aot.NAME)
+    cc.output_dir = str(folder)
+    cc.output_file = f"{aot.NAME}.{digest[:12]}{importlib.machinery.EXTENSION_SUFFIXES[0]}"
+    cc.target_cpu = "host"  # (numba's JIT compiles for this machine's CPU too)
+    kernels: dict[str, list] = {}
+    n = 0
+    for qual, variants in sigs.items():
+        modname, name = qual.rsplit(".", 1)
+        func = getattr(sys.modules[modname], name).py_func
+        for sig, ret in variants:
+            try:
+                specs = [_aot_spec(t) for t in sig]
+            except ValueError:  # (an argument the module cannot take: numba's JIT serves it)
+                continue
+            export = f"k{n}"
+            cc.export(export, ret(*sig))(func)
+            kernels.setdefault(qual, []).append([export, specs])
+            n += 1
+    with _numpy_error_model():
+        cc.compile()
+    manifest = {"file": cc.output_file, "hash": digest, "kernels": kernels}
+    tmp = folder / f"{aot.MANIFEST}.{os.getpid()}"
+    tmp.write_text(json.dumps(manifest))
+    os.replace(tmp, folder / aot.MANIFEST)
+    for old in folder.glob(f"{aot.NAME}.*{importlib.machinery.EXTENSION_SUFFIXES[0]}"):
+        if old.name != cc.output_file:  # (an earlier build for this Python)
+            old.unlink(missing_ok=True)
+    return n
+
+
+def build_ahead_of_time() -> tuple[bool, str]:
+    """Compile the kernels ahead of time (two processes under numba's JIT).
+
+    The first runs the warm-up's exercise (:func:`exercise_particles`)
+    and records each kernel's specialisations; the second compiles them.
+
+    Returns
+    -------
+    tuple[bool, str]
+        Whether the module was built, and what to tell the user: the seconds and
+        the folder, or why not (runs then take numba's JIT, as before).
+    """
+    import tempfile  # noqa: PLC0415
+
+    t0 = time.perf_counter()
+    env = {**os.environ, aot.ENV: "numba"}
+    with tempfile.TemporaryDirectory() as tmp:
+        sigs = str(Path(tmp) / "signatures.pickle")
+        for step in ("--aot-signatures", "--aot-compile"):
+            cmd = [sys.executable, "-m", "pfem2x.jit", step, sigs]
+            r = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
+            if r.returncode != 0:
+                lines = r.stderr.strip().splitlines() or ["(no message)"]
+                why = next((ln for ln in reversed(lines) if "Error" in ln), lines[-1])
+                return False, f"kernels not compiled ahead of time (numba's JIT serves): {why}"
+    seconds = time.perf_counter() - t0
+    return True, f"kernels compiled ahead of time in {seconds:.0f} s ({cache_dir()})"
+
+
+def _aot_step(signatures: str | None, compile_from: str | None) -> int:
+    """One step of :func:`build_ahead_of_time` (its own process, numba's JIT)."""
+    if os.environ.get(aot.ENV) != "numba":
+        print(f"error: {aot.ENV}=numba must be set (build_ahead_of_time sets it)", file=sys.stderr)
+        return 2
+    if signatures:
+        print(f"{_aot_signatures(Path(signatures))} kernel specialisations recorded")
+        return 0
+    import pfem2x.particles._kernels  # noqa: F401, PLC0415 - (the kernels' modules, under
+    import pfem2x.physics.flow._kernels  # noqa: F401, PLC0415 - numba's JIT: their
+    import pfem2x.physics.flow._load_kernels  # noqa: F401, PLC0415 - source functions)
+
+    folder = cache_dir()
+    folder.mkdir(parents=True, exist_ok=True)
+    n = _aot_compile(folder, Path(str(compile_from)))
+    print(f"{n} kernel specialisations compiled: {folder / aot.MANIFEST}")
+    return 0
+
+
 def compile_bytecode(root: Path | None = None) -> bool:
     """Byte-compile the package's modules whose ``.pyc`` is missing or stale.
 
@@ -415,22 +544,33 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--if-cold", action="store_true", help="warm up only when the cache is cold (else silent)"
     )
+    ap.add_argument("--aot-signatures", metavar="FILE", help=argparse.SUPPRESS)
+    ap.add_argument("--aot-compile", metavar="FILE", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
-    cold = is_cold()
+    if args.aot_signatures or args.aot_compile:  # (the steps of build_ahead_of_time)
+        return _aot_step(args.aot_signatures, args.aot_compile)
+    cold, current = is_cold(), aot.is_current()
     if args.check:
         print(f"pfem2x: particle kernel cache {'cold' if cold else 'warm'} ({cache_dir()})")
-        return 1 if cold else 0
+        print(f"pfem2x: kernels compiled ahead of time: {'current' if current else 'no'}")
+        return 1 if cold or not current else 0
     compile_bytecode()
-    if not cold:
-        if not args.if_cold:  # (runs load each kernel from the cache when they first call it)
-            print(f"pfem2x: particle kernel cache warm, nothing to compile ({cache_dir()})")
-        return 0
+    if (
+        not cold and not args.if_cold
+    ):  # (runs load each kernel from the cache when they first call it)
+        print(f"pfem2x: particle kernel cache warm, nothing to compile ({cache_dir()})")
+    if cold:
 
-    def say(msg: str) -> None:
-        print(msg, file=sys.stderr, flush=True)
+        def say(msg: str) -> None:
+            print(msg, file=sys.stderr, flush=True)
 
-    seconds = warm_up(say)
-    print(f"pfem2x: particle kernels compiled in {seconds:.1f} s ({cache_dir()})")
+        seconds = warm_up(say)
+        print(f"pfem2x: particle kernels compiled in {seconds:.1f} s ({cache_dir()})")
+    if not current:
+        print("pfem2x: compiling the kernels ahead of time...", file=sys.stderr, flush=True)
+        print(f"pfem2x: {build_ahead_of_time()[1]}")
+    elif not args.if_cold:
+        print("pfem2x: kernels compiled ahead of time: current")
     return 0
 
 

@@ -406,7 +406,7 @@ def summary(
     ``compile_seconds``, ``startup_timings`` (the solver's ``timings`` at the
     first step: the start-up's share of them, e.g. the initial pressure solve).
     """
-    from pfem2x import compat, fem  # noqa: PLC0415
+    from pfem2x import aot, compat, fem  # noqa: PLC0415
     from pfem2x.compat import MPI  # noqa: PLC0415
 
     history, dts, step_wall = run["history"], run["dts"], run["step_wall"]
@@ -442,6 +442,8 @@ def summary(
         "auto_keys": dict(solver.auto_keys),
         "dolfinx_version": compat.dolfinx.__version__,
         "numba_version": numba_version(),
+        "kernels": "ahead of time" if aot.active() else "numba",
+        "kernels_jit": sorted(set().union(*comm.allgather(aot.jit_kernels()))),
         "mpi_size": comm.size,
         "metrics": solver.metrics(history),
     }

@@ -1,5 +1,6 @@
 """The particle kernels' warm-up: the cold-cache check and the announcement."""
 
+import itertools
 import os
 import time
 from pathlib import Path
@@ -106,7 +107,11 @@ def test_warm_up_announces_a_cold_cache(monkeypatch):
 
 def test_the_command_says_what_it_did(monkeypatch, capsys):
     """``python -m pfem2x.jit``: a warm cache is said to be warm (nothing compiled, and
-    with ``--if-cold`` nothing said); a cold one is compiled and the seconds said."""
+    with ``--if-cold`` nothing said); a cold one is compiled and the seconds said; a
+    compiled module that is not current is built."""
+    from pfem2x import aot
+
+    monkeypatch.setattr(aot, "is_current", lambda: True)
     monkeypatch.setattr(jit, "is_cold", lambda: False)
     assert jit.main([]) == 0
     assert "cache warm, nothing to compile" in capsys.readouterr().out
@@ -118,6 +123,12 @@ def test_the_command_says_what_it_did(monkeypatch, capsys):
     assert jit.main([]) == 0
     out = capsys.readouterr()
     assert "particle kernels compiled in" in out.out and jit.MESSAGE in out.err
+    assert "compiled ahead of time: current" in out.out
+    monkeypatch.setattr(jit, "is_cold", lambda: False)
+    monkeypatch.setattr(aot, "is_current", lambda: False)
+    monkeypatch.setattr(jit, "build_ahead_of_time", lambda: (False, "no compiler"))
+    assert jit.main(["--if-cold"]) == 0
+    assert capsys.readouterr().out == "pfem2x: no compiler\n"
 
 
 def test_the_package_is_byte_compiled_whatever_python_may_write(tmp_path, monkeypatch):
@@ -144,12 +155,22 @@ def test_the_package_is_byte_compiled_whatever_python_may_write(tmp_path, monkey
 
 @pytest.mark.slow
 def test_after_the_warm_up_no_scene_run_compiles_a_kernel(tmp_path):
-    """``python -m pfem2x.jit`` (``make setup``) compiles every kernel the scenes call."""
+    """``python -m pfem2x.jit`` (``make setup``) compiles every kernel the scenes call,
+    into numba's cache and ahead of time (no run falls back to numba's JIT)."""
+    import json
     import subprocess
     import sys
 
+    from pfem2x import aot
+
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), "NUMBA_DEBUG_CACHE": "1"}
-    subprocess.run([sys.executable, "-m", "pfem2x.jit"], check=True, env=env, capture_output=True)
+    env.pop(aot.ENV, None)
+    r = subprocess.run(
+        [sys.executable, "-m", "pfem2x.jit"], env=env, capture_output=True, text=True
+    )
+    assert r.returncode == 0, r.stderr
+    # (DOLFINx's forms need a C compiler too: the module is built wherever pfem2x runs)
+    assert "kernels compiled ahead of time in" in r.stdout, r.stdout + r.stderr
     quiet = ["--set", "output.png=false", "--set", "output.fields=false"]
     runs = [
         ("rayleigh-taylor", "lagrangian"),  # the first pass's share, the cellwise operators
@@ -157,14 +178,17 @@ def test_after_the_warm_up_no_scene_run_compiles_a_kernel(tmp_path):
         ("rising-bubble", "lagrangian"),  # the curvature's fits
         ("rising-bubble", "eulerian"),
     ]
-    for scene, frame in runs:
-        out = tmp_path / f"{scene}-{frame}"
+    kinds = [("numba", {**env, aot.ENV: "numba"}), ("ahead of time", env)]
+    for (scene, frame), (kind, run_env) in itertools.product(runs, kinds):
+        out = tmp_path / f"{scene}-{frame}-{kind}"
         r = subprocess.run(
             [sys.executable, "-m", "pfem2x", "run", scene, "--variant", "small", *quiet,
              "--set", f'method.frame="{frame}"', "--out", str(out)],
-            env=env, capture_output=True, text=True,
+            env=run_env, capture_output=True, text=True,
         )  # fmt: skip
         assert r.returncode == 0, r.stderr
         compiled = [ln for ln in (r.stdout + r.stderr).splitlines() if "index saved" in ln]
-        assert not compiled, (scene, frame, compiled)
+        assert not compiled, (scene, frame, kind, compiled)
         assert jit.MESSAGE not in r.stderr
+        summary = json.loads((out / "summary.json").read_text())
+        assert (summary["kernels"], summary["kernels_jit"]) == (kind, []), (scene, frame)

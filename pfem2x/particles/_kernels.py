@@ -24,7 +24,8 @@ from __future__ import annotations
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
+
+from pfem2x.aot import njit
 
 WALL = -1
 REMOTE = -2

@@ -12,8 +12,8 @@ multiply-add); only the loops are compiled.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from pfem2x.aot import njit
 from pfem2x.particles._kernels import counting_sort
 
 __all__ = [

@@ -7,7 +7,8 @@ another order); triangles run loops written out, other cells the generic loops.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from pfem2x.aot import njit
 
 __all__ = ["force_load_kernel", "pressure_load_kernel"]
 
