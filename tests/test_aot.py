@@ -48,16 +48,18 @@ def test_the_argument_checks_accept_what_numba_types_alike():
 
 def test_a_compiled_kernel_takes_numba_for_other_types():
     """A call the compiled module has no specialisation for runs through numba's JIT,
-    which the process imports only then, and the kernel is recorded."""
+    which the process imports only then, and the kernel is recorded. (DOLFINx 0.11's
+    FFCx imports numba itself, for its own helpers.)"""
     if not aot.is_current():
         pytest.skip("no current compiled module (make setup builds it)")
     code = (
         "import sys, numpy as np\n"
         "from pfem2x import aot\n"
         "from pfem2x.particles import _kernels as K\n"
+        "by_dolfinx = 'numba' in sys.modules\n"
         "assert type(K.is_identity) is aot.Kernel and aot.active()\n"
         "assert K.is_identity(np.arange(4)) and not K.is_identity(np.arange(4)[::-1].copy())\n"
-        "assert 'numba' not in sys.modules and aot.jit_kernels() == []\n"
+        "assert aot.jit_kernels() == [] and ('numba' in sys.modules) == by_dolfinx\n"
         "assert K.is_identity(np.arange(4, dtype=np.int32))\n"  # (compiled for int64 only)
         "assert not K.is_identity(np.arange(8)[::-2])\n"  # (not contiguous)
         "assert 'numba' in sys.modules and aot.jit_kernels() == ['is_identity']\n"
