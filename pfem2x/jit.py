@@ -418,7 +418,7 @@ def _aot_signatures(path: Path) -> int:
 
 
 def _aot_compile(folder: Path, path: Path) -> int:
-    """Compile the specialisations pickled at ``path`` (:func:`_signatures`) into the
+    """Compile the specialisations pickled at ``path`` (:func:`_aot_signatures`) into the
     module and its manifest in ``folder``; returns their number.
 
     A process of its own: numba's ahead-of-time compiler can fail to type a kernel
