@@ -22,13 +22,14 @@ is used only while its hash matches the sources, numba's version and Python's;
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib.metadata
 import importlib.util
 import json
 import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -199,7 +200,10 @@ class Kernel:
         if self.dispatcher is None:
             materialize()
         _STATE["jit"].add(self.__name__)
-        return self.dispatcher(*args, **kwargs)
+        if _STATE["numba"]:
+            return self.dispatcher(*args, **kwargs)
+        with _numba_globals():  # (numba may compile it now: the kernels it calls)
+            return self.dispatcher(*args, **kwargs)
 
 
 _STATE: dict[str, Any] = {
@@ -208,6 +212,7 @@ _STATE: dict[str, Any] = {
     "kernels": [],
     "jit": set(),
     "numba": False,
+    "swapped": False,
 }
 #: Called (no arguments) when a run first falls back to numba (:func:`materialize`).
 on_numba: list[Callable[[], Any]] = []
@@ -276,31 +281,53 @@ def use_numba() -> None:
     if _STATE["kernels"]:
         _STATE["numba"] = True
         materialize()
+        _swap_globals(to_numba=True)
 
 
 def materialize() -> None:
-    """Import numba and give every kernel its JIT dispatcher (once per process).
+    """Import numba and give every kernel its JIT dispatcher (once per kernel).
 
-    The kernel modules' globals become the dispatchers, so that numba compiles the
-    kernels that call others; :class:`Kernel` objects held elsewhere keep taking
-    the compiled module first.
+    The kernel modules keep their :class:`Kernel` objects (the compiled module
+    first); numba sees the dispatchers while it runs a kernel
+    (:func:`_numba_globals`).
     """
     import numba  # noqa: PLC0415
 
-    made = {}
     for k in _STATE["kernels"]:
         if k.dispatcher is None:
             k.dispatcher = numba.njit(**k.options)(k.py_func)
-        made[id(k)] = k.dispatcher
-    for name in KERNEL_MODULES:
-        module = sys.modules.get(name)
-        for key, value in list(vars(module).items()) if module else ():
-            if isinstance(value, Kernel):
-                setattr(module, key, made[id(value)])
     hooks = list(on_numba)
     on_numba.clear()
     for hook in hooks:
         hook()
+
+
+def _swap_globals(to_numba: bool) -> None:
+    """The kernel modules' kernels as numba's dispatchers (or back as :class:`Kernel`)."""
+    back = {id(k.dispatcher): k for k in _STATE["kernels"] if k.dispatcher is not None}
+    for name in KERNEL_MODULES:
+        module = sys.modules.get(name)
+        for key, value in list(vars(module).items()) if module else ():
+            if to_numba and isinstance(value, Kernel) and value.dispatcher is not None:
+                setattr(module, key, value.dispatcher)
+            elif not to_numba and id(value) in back:
+                setattr(module, key, back[id(value)])
+
+
+@contextlib.contextmanager
+def _numba_globals() -> Iterator[None]:
+    """While numba runs a kernel: the kernels it calls are dispatchers in their modules'
+    globals, as numba needs to compile a caller (a nested use keeps the outer one's)."""
+    if _STATE["swapped"]:
+        yield
+        return
+    _STATE["swapped"] = True
+    _swap_globals(to_numba=True)
+    try:
+        yield
+    finally:
+        _swap_globals(to_numba=False)
+        _STATE["swapped"] = False
 
 
 def is_current() -> bool:

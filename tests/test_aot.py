@@ -63,7 +63,19 @@ def test_a_compiled_kernel_takes_numba_for_other_types():
         "assert K.is_identity(np.arange(4, dtype=np.int32))\n"  # (compiled for int64 only)
         "assert not K.is_identity(np.arange(8)[::-2])\n"  # (not contiguous)
         "assert 'numba' in sys.modules and aot.jit_kernels() == ['is_identity']\n"
-        "assert type(K.is_identity) is not aot.Kernel\n"  # the module's own: numba's
+        "assert type(K.is_identity) is aot.Kernel\n"  # (the module keeps the compiled kernels)
+        "src, out = np.arange(6.0).reshape(3, 2), np.zeros((3, 2))\n"
+        "K.gather_rows(src, np.array([2, 0, 1]), out)\n"
+        "assert out[0, 0] == 4.0 and aot.jit_kernels() == ['is_identity']\n"
+        # numba compiles a kernel that calls another module's kernel (F layout: new)
+        "from pfem2x.physics.flow import _kernels as F\n"
+        "rng = np.random.default_rng(1)\n"
+        "c, p = rng.random((40, 2)), rng.random((30, 2))\n"
+        "a = F.pairs_within_kernel(c, p, 0.2)\n"
+        "b = F.pairs_within_kernel(np.asfortranarray(c), p, 0.2)\n"
+        "assert all(np.array_equal(x, y) for x, y in zip(a, b)) and len(a[0]) > 0\n"
+        "assert aot.jit_kernels() == ['is_identity', 'pairs_within_kernel']\n"
+        "assert type(F.counting_sort) is aot.Kernel\n"
     )
     env = {k: v for k, v in os.environ.items() if k != aot.ENV}
     r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
