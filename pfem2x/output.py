@@ -365,11 +365,12 @@ class LastGood:
 
     def __init__(self, comm: MPI.Comm, out: Path, domain: Domain, solver: Solver):
         self.comm, self.out, self.domain, self.solver = comm, out, domain, solver
+        self.state: dict[str, Any] = {}
         self.keep()
 
     def keep(self) -> None:
-        """Remember the solver's current state."""
-        self.state = self.solver.state()
+        """Remember the solver's current state (in the arrays of the state before)."""
+        self.state = self.solver.state(into=self.state)
 
     def write(self, t_good: float) -> None:
         """Restore the remembered state and write ``last_good.xdmf`` (+ particles) (collective)."""

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from pfem2x.buffers import copy_into
 from pfem2x.compat import MPI
 from pfem2x.particles import _kernels as K
 from pfem2x.particles.pmesh import FacetMarker, ParticleMesh
@@ -312,20 +313,27 @@ class Cloud:
         self._offsets = offsets
         return int(remove.sum()), sl.stop - sl.start
 
-    def extract(self, idx: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    def extract(
+        self, idx: np.ndarray | None = None, into: dict[str, np.ndarray] | None = None
+    ) -> dict[str, np.ndarray]:
         """Copies of positions, cells and all fields (hidden ones too) of ``idx`` (all: None).
 
         Each array is copied once (fancy indexing already copies; a slice is copied).
+        ``into``: an earlier extract of all particles, whose arrays take the copies
+        where they have room (:func:`copy_into`; no new arrays, no page faults).
         """
         sel = slice(0, self._n) if idx is None else idx
+        old = into if idx is None and into is not None else {}
 
-        def take(a: np.ndarray) -> np.ndarray:
+        def take(key: str, a: np.ndarray) -> np.ndarray:
             r = a[sel]
+            if key in old:
+                return copy_into(r, old[key])
             return r.copy() if np.may_share_memory(r, a) else r
 
-        out = {"__x": take(self._x), "__c": take(self._c)}
+        out = {"__x": take("__x", self._x), "__c": take("__c", self._c)}
         for name, a in self._f.items():
-            out[name] = take(a)
+            out[name] = take(name, a)
         return out
 
     def save(self, drop: np.ndarray | None = None) -> dict[str, Any]:

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from pfem2x.buffers import copy_into
 from pfem2x.compat import MPI
 from pfem2x.mesh import Domain
 from pfem2x.scene import Scene, SceneError
@@ -182,16 +183,22 @@ class Solver:
         """A reference kinetic energy for the runner's energy guard (0: none)."""
         return 0.0
 
-    def state(self) -> dict[str, np.ndarray]:
+    def state(self, into: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
         """Copies of the output fields and the particle cloud (the last good state).
 
         Lighter than :meth:`checkpoint`: what is needed to write the state for
-        inspection, not to continue from it.
+        inspection, not to continue from it. ``into``: an earlier state, whose arrays
+        take the copies where they have room (its values are then overwritten).
         """
-        out = {f"field.{k}": u.x.array.copy() for k, u in self.fields().items()}
+        old = into or {}
+        out = {}
+        for k, u in self.fields().items():
+            prev = old.get(f"field.{k}")
+            a = u.x.array
+            out[f"field.{k}"] = a.copy() if prev is None else copy_into(a, prev)
         cloud = self.cloud()
         if cloud is not None:
-            out.update(_cloud_arrays(cloud))
+            out.update(_cloud_arrays(cloud, old))
         return out
 
     def restore(self, state: dict[str, np.ndarray]) -> None:
@@ -423,9 +430,13 @@ def _like(val: Any, old: Any) -> Any:
     return val
 
 
-def _cloud_arrays(cloud: Any) -> dict[str, np.ndarray]:
-    """Positions, cells and every field (hidden ones too) of a particle cloud."""
-    raw = cloud.extract()
+def _cloud_arrays(cloud: Any, into: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
+    """Positions, cells and every field (hidden ones too) of a particle cloud (copies;
+    ``into``: an earlier result, whose arrays take them where they have room)."""
+    old = into or {}
+    prev = {"__x": old.get("cloud.x"), "__c": old.get("cloud.cells")}
+    prev.update({k[len("cloud.f.") :]: v for k, v in old.items() if k.startswith("cloud.f.")})
+    raw = cloud.extract(into={k: v for k, v in prev.items() if v is not None})
     out = {"cloud.x": raw.pop("__x"), "cloud.cells": raw.pop("__c")}
     shapes = {k: list(cloud.field_shape(k)) for k in raw}
     out.update({f"cloud.f.{k}": v for k, v in raw.items()})
