@@ -97,13 +97,17 @@ def _mark_warm() -> None:
         pass
 
 
+def _import_kernel_modules() -> None:
+    """Import the three kernel modules (:data:`pfem2x.aot.KERNEL_MODULES`)."""
+    import pfem2x.particles._kernels  # noqa: F401, PLC0415
+    import pfem2x.physics.flow._kernels  # noqa: F401, PLC0415
+    import pfem2x.physics.flow._load_kernels  # noqa: F401, PLC0415
+
+
 def _through_numba() -> None:
     """Every kernel through numba's JIT in this process: numba's cache is what the
     exercise fills, also where a compiled module would serve (:func:`pfem2x.aot.use_numba`)."""
-    import pfem2x.particles._kernels  # noqa: F401, PLC0415 - (the three kernel modules
-    import pfem2x.physics.flow._kernels  # noqa: F401, PLC0415 - before use_numba)
-    import pfem2x.physics.flow._load_kernels  # noqa: F401, PLC0415
-
+    _import_kernel_modules()  # (all of them before use_numba)
     aot.use_numba()
 
 
@@ -497,10 +501,7 @@ def _aot_step(signatures: str | None, compile_from: str | None) -> int:
     if signatures:
         print(f"{_aot_signatures(Path(signatures))} kernel specialisations recorded")
         return 0
-    import pfem2x.particles._kernels  # noqa: F401, PLC0415 - (the kernels' modules, under
-    import pfem2x.physics.flow._kernels  # noqa: F401, PLC0415 - numba's JIT: their
-    import pfem2x.physics.flow._load_kernels  # noqa: F401, PLC0415 - source functions)
-
+    _import_kernel_modules()  # (under numba's JIT: their source functions)
     folder = cache_dir()
     folder.mkdir(parents=True, exist_ok=True)
     n = _aot_compile(folder, Path(str(compile_from)))
